@@ -1,0 +1,114 @@
+//! Deprojection and voxel fusion of 50 depth frames of 640x480 (the 7-Scenes frames from `../shared/data`
+//! when present, otherwise a synthetic room), and deprojection of one frame.
+//!
+//! `cargo bench --bench fuse` (set `RAYON_NUM_THREADS=2` to pin the thread count).
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use depthcal::camera::{
+    deproject, read_depth_png, DeprojectConfig, DepthImage, Intrinsics, RayTable,
+};
+use depthcal::fusion::{fuse_frames, FrameInput, FuseConfig};
+use depthcal::geometry::transform::isometry_from_rows;
+use nalgebra::{Isometry3, Point3, Vector3};
+use std::hint::black_box;
+use std::path::Path;
+
+/// 50 frames with their camera poses and intrinsics.
+fn frames() -> (
+    Vec<DepthImage>,
+    Vec<Isometry3<f64>>,
+    Intrinsics,
+    &'static str,
+) {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data/7scenes-rgbd-tsdf-fusion/frames");
+    let intr = Intrinsics::pinhole(640, 480, 585.0, 585.0, 320.0, 240.0);
+    if dir.is_dir() {
+        let mut imgs = Vec::new();
+        let mut poses = Vec::new();
+        for i in 0..50 {
+            imgs.push(read_depth_png(dir.join(format!("frame-{:06}.depth.png", i * 10))).unwrap());
+            let text =
+                std::fs::read_to_string(dir.join(format!("frame-{:06}.pose.txt", i * 10))).unwrap();
+            let v: Vec<f64> = text
+                .split_whitespace()
+                .map(|s| s.parse().unwrap())
+                .collect();
+            poses.push(isometry_from_rows(&v[..16].try_into().unwrap(), "pose").unwrap());
+        }
+        return (imgs, poses, intr, "7scenes");
+    }
+    // Synthetic: a 4 x 4 x 2.5 m room seen from 50 poses on a circle.
+    let mut imgs = Vec::new();
+    let mut poses = Vec::new();
+    for i in 0..50 {
+        let a = i as f64 / 50.0 * std::f64::consts::TAU;
+        let eye = Point3::new(0.8 * a.cos(), 0.8 * a.sin(), 1.2);
+        let t = Isometry3::face_towards(
+            &eye,
+            &Point3::new(2.0 * (a + 0.5).cos(), 2.0 * (a + 0.5).sin(), 0.8),
+            &Vector3::z(),
+        );
+        let mut img = DepthImage::zeros(640, 480);
+        for v in 0..480u32 {
+            for u in 0..640u32 {
+                let [x, y] = intr.pixel_ray([u as f64, v as f64]);
+                let d = t.rotation * Vector3::new(x, y, 1.0);
+                let o = t.translation.vector;
+                let mut best = f64::INFINITY;
+                for k in 0..3 {
+                    for wall in [-2.0, 2.0] {
+                        let wall = if k == 2 { (wall + 2.0) * 0.625 } else { wall };
+                        if d[k].abs() > 1e-9 {
+                            let s = (wall - o[k]) / d[k];
+                            if s > 0.0 && s < best {
+                                best = s;
+                            }
+                        }
+                    }
+                }
+                img.data[(v * 640 + u) as usize] = (best * 1000.0).round().min(65535.0) as u16;
+            }
+        }
+        imgs.push(img);
+        poses.push(t);
+    }
+    (imgs, poses, intr, "synthetic")
+}
+
+fn bench(c: &mut Criterion) {
+    let (imgs, poses, intr, source) = frames();
+    let inputs: Vec<FrameInput> = imgs
+        .iter()
+        .zip(&poses)
+        .map(|(d, t)| FrameInput {
+            depth: d,
+            t_base_cam: *t,
+        })
+        .collect();
+    let mut g = c.benchmark_group(format!("fuse_{source}_50x640x480"));
+    g.sample_size(10);
+    for (name, voxel) in [("auto_voxel", None), ("voxel_10mm", Some(0.01))] {
+        let cfg = FuseConfig {
+            voxel_size_m: voxel,
+            ..FuseConfig::voxels_only()
+        };
+        g.bench_function(format!("deproject+voxel_fusion/{name}"), |b| {
+            b.iter(|| black_box(fuse_frames(&inputs, &intr, &cfg).unwrap().cloud.len()))
+        });
+    }
+    g.finish();
+    let rays = RayTable::new(&intr);
+    c.bench_function("deproject_one_frame_640x480", |b| {
+        b.iter(|| {
+            black_box(
+                deproject(&imgs[0], &rays, &DeprojectConfig::default())
+                    .unwrap()
+                    .len(),
+            )
+        })
+    });
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

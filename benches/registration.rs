@@ -1,0 +1,128 @@
+//! Every hot stage of `register`, on the sample clouds in `clouds/` (a simulated scene, ~28k points each)
+//! and, when present, on the 3DMatch pair 1→0 from `../shared/data` (~260k points each).
+//!
+//! `cargo bench --bench registration` (set `RAYON_NUM_THREADS=2` to pin the thread count).
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use depthcal::features::{compute_fpfh, FpfhConfig};
+use depthcal::index::feature::nearest_both_ways;
+use depthcal::index::KdIndex;
+use depthcal::preprocess::normals::{estimate_normals, orient, NormalConfig, Orientation};
+use depthcal::preprocess::scale::{estimate_spacing, voxel_for_target};
+use depthcal::preprocess::voxel::voxel_downsample;
+use depthcal::registration::correspondence::{match_features, MatchConfig};
+use depthcal::registration::{icp, ransac, register, IcpConfig, RansacConfig, RegisterConfig};
+use depthcal::PointCloud;
+use nalgebra::Isometry3;
+use std::hint::black_box;
+use std::path::Path;
+
+fn pairs() -> Vec<(&'static str, PointCloud, PointCloud)> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut out = vec![(
+        "demo",
+        depthcal::io::read_cloud(root.join("clouds/demo_source.ply")).unwrap(),
+        depthcal::io::read_cloud(root.join("clouds/demo_target.ply")).unwrap(),
+    )];
+    let d = root.join("../shared/data/3dmatch-redkitchen");
+    if d.is_dir() {
+        out.push((
+            "3dmatch_1_0",
+            depthcal::io::read_cloud(d.join("cloud_bin_1.ply")).unwrap(),
+            depthcal::io::read_cloud(d.join("cloud_bin_0.ply")).unwrap(),
+        ));
+    }
+    out
+}
+
+fn stages(c: &mut Criterion) {
+    for (name, src, tgt) in pairs() {
+        let mut g = c.benchmark_group(name);
+        g.sample_size(10);
+        g.bench_function("read_ply", |b| {
+            let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("clouds/demo_target.ply");
+            b.iter(|| black_box(depthcal::io::read_cloud(&p).unwrap()))
+        });
+        g.bench_function("scale", |b| {
+            b.iter(|| {
+                let s = estimate_spacing(&src.points).unwrap();
+                black_box(voxel_for_target(&src.points, 5000, 1.5 * s).unwrap())
+            })
+        });
+        let s = estimate_spacing(&src.points).unwrap();
+        let v = voxel_for_target(&src.points, 5000, 1.5 * s).unwrap();
+        g.bench_function("voxel_downsample", |b| {
+            b.iter(|| black_box(voxel_downsample(&src, v).unwrap()))
+        });
+        let prep = |c: &PointCloud| {
+            let d = voxel_downsample(c, v).unwrap();
+            let idx = KdIndex::new(&d.points);
+            let mut n = estimate_normals(
+                &d.points,
+                &idx,
+                &NormalConfig {
+                    radius: Some(2.0 * v),
+                    max_neighbors: 30,
+                },
+            );
+            orient(&d.points, &mut n, Orientation::LocalCentroid(5.0 * v));
+            (d, idx, n)
+        };
+        let (sd, si, sn) = prep(&src);
+        let (td, ti, tn) = prep(&tgt);
+        g.bench_function("kdtree_build", |b| {
+            b.iter(|| black_box(KdIndex::new(&td.points)))
+        });
+        g.bench_function("normals", |b| {
+            b.iter(|| {
+                black_box(estimate_normals(
+                    &sd.points,
+                    &si,
+                    &NormalConfig {
+                        radius: Some(2.0 * v),
+                        max_neighbors: 30,
+                    },
+                ))
+            })
+        });
+        let fcfg = FpfhConfig {
+            radius: 5.0 * v,
+            max_neighbors: 100,
+        };
+        g.bench_function("fpfh", |b| {
+            b.iter(|| black_box(compute_fpfh(&sd.points, &sn, &si, &fcfg)))
+        });
+        let sf = compute_fpfh(&sd.points, &sn, &si, &fcfg);
+        let tf = compute_fpfh(&td.points, &tn, &ti, &fcfg);
+        g.bench_function("feature_nn_both_ways", |b| {
+            b.iter(|| black_box(nearest_both_ways(&sf, &tf)))
+        });
+        let corr = match_features(&sf, &tf, &MatchConfig::default());
+        let rcfg = RansacConfig {
+            inlier_distance: 1.5 * v,
+            ..Default::default()
+        };
+        g.bench_function("ransac", |b| {
+            b.iter(|| black_box(ransac(&sd.points, &td.points, &ti, &corr, &rcfg).unwrap()))
+        });
+        let init = ransac(&sd.points, &td.points, &ti, &corr, &rcfg)
+            .unwrap()
+            .transform;
+        let icfg = IcpConfig {
+            max_correspondence_distance: 3.0 * v,
+            translation_tolerance: 1e-3 * v,
+            ..Default::default()
+        };
+        g.bench_function("icp_level0", |b| {
+            b.iter(|| black_box(icp(&sd.points, &td.points, Some(&tn), &ti, &init, &icfg).unwrap()))
+        });
+        g.bench_function("register_total", |b| {
+            b.iter(|| black_box(register(&src, &tgt, None, &RegisterConfig::default()).unwrap()))
+        });
+        let _ = Isometry3::<f64>::identity();
+        g.finish();
+    }
+}
+
+criterion_group!(benches, stages);
+criterion_main!(benches);

@@ -1,0 +1,516 @@
+//! The cell dataset `depthcal-cell/1`: a directory with a `cell.toml` manifest, per-robot pose files,
+//! intrinsics, hand-eye transforms and depth frames, and optionally `ground_truth.json`.
+//!
+//! ```toml
+//! format = "depthcal-cell/1"
+//! reference = "left"              # the robot whose base frame is base1
+//!
+//! [[robot]]
+//! name = "left"
+//! poses = "left/poses.csv"        # one row per frame: T_base_ee
+//! pose_format = "kuka"            # kuka (default) | matrix | xyzquat
+//! intrinsics = "left/intrinsics.json"
+//! hand_eye = [1,0,0,0, 0,1,0,0, 0,0,1,0.1, 0,0,0,1]   # T_ee_cam, row-major, metres (or a JSON path)
+//! depth = "left/depth/{frame}.png"
+//! color = "left/color/{frame}.png"   # optional
+//! ```
+//!
+//! Every path is relative to the cell directory (absolute paths are accepted too). Tables and keys this
+//! version does not know (e.g. `[priors]`) are kept and written back unchanged. See `docs/cell-format.md`.
+
+use crate::camera::depth::read_depth_png_header;
+use crate::camera::{read_depth_png, DepthImage, Intrinsics};
+use crate::error::{Error, Result};
+use crate::geometry::pose::{read_poses, PoseFormat, PoseRecord};
+use crate::geometry::transform::{isometry_from_rows, isometry_to_nested, isometry_to_rows};
+use nalgebra::Isometry3;
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
+use std::path::{Path, PathBuf};
+
+/// The manifest's `format` value for this version of the schema.
+pub const CELL_FORMAT: &str = "depthcal-cell/1";
+/// The manifest's file name inside the cell directory.
+pub const MANIFEST_FILE: &str = "cell.toml";
+/// The optional ground-truth file inside the cell directory.
+pub const GROUND_TRUTH_FILE: &str = "ground_truth.json";
+/// The placeholder replaced by the frame id in image path patterns.
+pub const FRAME_PLACEHOLDER: &str = "{frame}";
+
+/// A robot's hand-eye transform `T_ee_cam` as the manifest gives it.
+#[derive(Clone, Debug, PartialEq)]
+pub enum HandEyeSpec {
+    /// Given inline as 16 numbers (row-major 4x4, metres) or as 4 rows of 4.
+    Inline(Isometry3<f64>),
+    /// A JSON file (relative to the cell directory) holding the matrix: 16 numbers, 4 rows of 4, or an object
+    /// with one of the keys `T_ee_cam`, `transform`, `matrix` holding either.
+    File(String),
+}
+
+fn matrix_from_json(v: &serde_json::Value) -> std::result::Result<[f64; 16], String> {
+    let nums =
+        |a: &[serde_json::Value]| -> Option<Vec<f64>> { a.iter().map(|x| x.as_f64()).collect() };
+    match v {
+        serde_json::Value::Array(a) if a.len() == 16 => {
+            let n = nums(a).ok_or("the 16 entries must be numbers")?;
+            Ok(n.try_into().unwrap())
+        }
+        serde_json::Value::Array(a) if a.len() == 4 => {
+            let mut m = Vec::with_capacity(16);
+            for row in a {
+                let r = row
+                    .as_array()
+                    .and_then(|r| nums(r))
+                    .filter(|r| r.len() == 4);
+                m.extend(r.ok_or("each of the 4 rows must hold 4 numbers")?);
+            }
+            Ok(m.try_into().unwrap())
+        }
+        serde_json::Value::Object(o) => {
+            for key in ["T_ee_cam", "transform", "matrix"] {
+                if let Some(inner) = o.get(key) {
+                    return matrix_from_json(inner);
+                }
+            }
+            Err("expected a key T_ee_cam, transform or matrix holding the 4x4 matrix".into())
+        }
+        _ => Err("expected a 4x4 matrix: 16 numbers row-major or 4 rows of 4 numbers".into()),
+    }
+}
+
+impl Serialize for HandEyeSpec {
+    fn serialize<S: Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        match self {
+            HandEyeSpec::Inline(t) => {
+                let mut rows = isometry_to_rows(t);
+                for v in &mut rows {
+                    // Round away float noise (1e-12 m, ~1e-12 rad) so manifests stay readable.
+                    *v = (*v * 1e12).round() / 1e12;
+                }
+                rows.serialize(s)
+            }
+            HandEyeSpec::File(p) => s.serialize_str(p),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for HandEyeSpec {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        use serde::de::Error as _;
+        let v = serde_json::Value::deserialize(d)?;
+        if let Some(s) = v.as_str() {
+            return Ok(HandEyeSpec::File(s.to_string()));
+        }
+        let m = matrix_from_json(&v)
+            .map_err(|m| D::Error::custom(format!("hand_eye: {m}, or a JSON file path")))?;
+        isometry_from_rows(&m, "hand_eye")
+            .map(HandEyeSpec::Inline)
+            .map_err(|e| D::Error::custom(e.to_string()))
+    }
+}
+
+fn default_pose_format() -> PoseFormat {
+    PoseFormat::Kuka
+}
+
+/// One `[[robot]]` table of the manifest.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RobotEntry {
+    /// The robot's name (unique in the cell).
+    pub name: String,
+    /// The pose CSV file (one row per frame: `T_base_ee`).
+    pub poses: String,
+    /// The pose file's format (default `kuka`).
+    #[serde(default = "default_pose_format")]
+    pub pose_format: PoseFormat,
+    /// The camera intrinsics JSON file (see [`Intrinsics`]).
+    pub intrinsics: String,
+    /// The hand-eye transform `T_ee_cam` (metres).
+    pub hand_eye: HandEyeSpec,
+    /// Depth image path pattern containing `{frame}`, e.g. `left/depth/{frame}.png` (16-bit PNG).
+    pub depth: String,
+    /// Optional colour image path pattern containing `{frame}`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub color: Option<String>,
+    /// Keys this schema version does not know; kept and written back.
+    #[serde(flatten)]
+    pub extra: toml::Table,
+}
+
+impl RobotEntry {
+    /// An entry with the conventional layout under `<name>/`: `poses.csv` (KUKA), `intrinsics.json`,
+    /// `depth/{frame}.png`, and an inline hand-eye.
+    pub fn standard(name: &str, t_ee_cam: Isometry3<f64>) -> Self {
+        RobotEntry {
+            name: name.to_string(),
+            poses: format!("{name}/poses.csv"),
+            pose_format: PoseFormat::Kuka,
+            intrinsics: format!("{name}/intrinsics.json"),
+            hand_eye: HandEyeSpec::Inline(t_ee_cam),
+            depth: format!("{name}/depth/{FRAME_PLACEHOLDER}.png"),
+            color: None,
+            extra: toml::Table::new(),
+        }
+    }
+}
+
+/// The `cell.toml` manifest.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CellManifest {
+    /// Must be [`CELL_FORMAT`].
+    pub format: String,
+    /// The reference robot's name; its base is `base1` in `T_base1_base2`.
+    pub reference: String,
+    /// The robots (`[[robot]]` tables), in file order.
+    #[serde(rename = "robot")]
+    pub robots: Vec<RobotEntry>,
+    /// Tables and keys this schema version does not know (e.g. `[priors]`); kept and written back.
+    #[serde(flatten)]
+    pub extra: toml::Table,
+}
+
+impl CellManifest {
+    /// An empty manifest of the current format with the given reference robot.
+    pub fn new(reference: &str) -> Self {
+        CellManifest {
+            format: CELL_FORMAT.to_string(),
+            reference: reference.to_string(),
+            robots: Vec::new(),
+            extra: toml::Table::new(),
+        }
+    }
+
+    /// Parses manifest text; `path` names the file in errors. Checks the format version, robot names and
+    /// the reference, and the `{frame}` patterns.
+    pub fn from_toml_str(text: &str, path: &Path) -> Result<Self> {
+        let m: CellManifest = toml::from_str(text)
+            .map_err(|e| Error::format(path, e.to_string().trim_end().to_string()))?;
+        m.validate().map_err(|msg| Error::format(path, msg))?;
+        for r in &m.robots {
+            let unknown: Vec<&String> = r.extra.keys().collect();
+            if !unknown.is_empty() {
+                log::warn!(
+                    "{}: robot {:?}: keys not in {CELL_FORMAT} kept but ignored: {unknown:?}",
+                    path.display(),
+                    r.name
+                );
+            }
+        }
+        Ok(m)
+    }
+
+    /// Reads `<dir>/cell.toml`.
+    pub fn read(dir: impl AsRef<Path>) -> Result<Self> {
+        let path = dir.as_ref().join(MANIFEST_FILE);
+        let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
+        Self::from_toml_str(&text, &path)
+    }
+
+    /// Checks the schema rules that serde cannot; the message names the field.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        if self.format != CELL_FORMAT {
+            return Err(format!(
+                "field `format` is {:?}; this depthcal reads {CELL_FORMAT:?}",
+                self.format
+            ));
+        }
+        if self.robots.is_empty() {
+            return Err("no [[robot]] table; a cell needs at least one robot".into());
+        }
+        for (i, r) in self.robots.iter().enumerate() {
+            let at = format!("robot[{i}] ({:?})", r.name);
+            if r.name.trim().is_empty() {
+                return Err(format!("robot[{i}]: field `name` is empty"));
+            }
+            if self.robots[..i].iter().any(|o| o.name == r.name) {
+                return Err(format!("{at}: the robot name is used twice"));
+            }
+            if !r.depth.contains(FRAME_PLACEHOLDER) {
+                return Err(format!(
+                    "{at}: field `depth` = {:?} must contain {FRAME_PLACEHOLDER}",
+                    r.depth
+                ));
+            }
+            if let Some(c) = &r.color {
+                if !c.contains(FRAME_PLACEHOLDER) {
+                    return Err(format!(
+                        "{at}: field `color` = {c:?} must contain {FRAME_PLACEHOLDER}"
+                    ));
+                }
+            }
+        }
+        if !self.robots.iter().any(|r| r.name == self.reference) {
+            let names: Vec<&str> = self.robots.iter().map(|r| r.name.as_str()).collect();
+            return Err(format!(
+                "field `reference` = {:?} names no robot (robots: {names:?})",
+                self.reference
+            ));
+        }
+        Ok(())
+    }
+
+    /// The manifest as TOML text.
+    pub fn to_toml_string(&self) -> Result<String> {
+        toml::to_string(self)
+            .map_err(|e| Error::InvalidInput(format!("cannot write the cell manifest: {e}")))
+    }
+
+    /// Validates and writes `<dir>/cell.toml` atomically.
+    pub fn write(&self, dir: impl AsRef<Path>) -> Result<()> {
+        let path = dir.as_ref().join(MANIFEST_FILE);
+        self.validate()
+            .map_err(|m| Error::InvalidInput(format!("{}: {m}", path.display())))?;
+        let text = self.to_toml_string()?;
+        crate::io::write_atomically(&path, |w| w.write_all(text.as_bytes()))
+    }
+}
+
+/// `ground_truth.json`: the true transforms of a simulated or surveyed cell.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GroundTruth {
+    /// `T_base1_base2`: maps the second robot's base coordinates (the first non-reference robot in the
+    /// manifest) into the reference robot's base, metres. JSON: 4 rows of 4 numbers.
+    pub t_base1_base2: Option<Isometry3<f64>>,
+    /// Every other key, kept as is (the simulator may add per-robot truths).
+    pub extra: serde_json::Map<String, serde_json::Value>,
+}
+
+impl GroundTruth {
+    /// Reads `<dir>/ground_truth.json`; `Ok(None)` when the file does not exist.
+    pub fn read(dir: impl AsRef<Path>) -> Result<Option<Self>> {
+        let path = dir.as_ref().join(GROUND_TRUTH_FILE);
+        let text = match std::fs::read_to_string(&path) {
+            Ok(t) => t,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(e) => return Err(Error::io(&path, e)),
+        };
+        let v: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| Error::format(&path, format!("not valid JSON: {e}")))?;
+        let serde_json::Value::Object(mut map) = v else {
+            return Err(Error::format(&path, "expected a JSON object"));
+        };
+        let t = match map.remove("T_base1_base2") {
+            None | Some(serde_json::Value::Null) => None,
+            Some(v) => {
+                let m = matrix_from_json(&v)
+                    .map_err(|m| Error::format(&path, format!("T_base1_base2: {m}")))?;
+                Some(
+                    isometry_from_rows(&m, "T_base1_base2")
+                        .map_err(|e| Error::format(&path, e.to_string()))?,
+                )
+            }
+        };
+        Ok(Some(GroundTruth {
+            t_base1_base2: t,
+            extra: map,
+        }))
+    }
+
+    /// Writes `<dir>/ground_truth.json` atomically.
+    pub fn write(&self, dir: impl AsRef<Path>) -> Result<()> {
+        let path = dir.as_ref().join(GROUND_TRUTH_FILE);
+        let mut map = self.extra.clone();
+        if let Some(t) = &self.t_base1_base2 {
+            map.insert(
+                "T_base1_base2".into(),
+                serde_json::to_value(isometry_to_nested(t)).unwrap(),
+            );
+        }
+        let text = serde_json::to_string_pretty(&serde_json::Value::Object(map)).unwrap();
+        crate::io::write_atomically(&path, |w| {
+            w.write_all(text.as_bytes())?;
+            w.write_all(b"\n")
+        })
+    }
+}
+
+/// One frame of a robot: its pose and image paths.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CellFrame {
+    /// Frame id (the pose file's `frame` column).
+    pub id: String,
+    /// `T_base_ee`, metres.
+    pub t_base_ee: Isometry3<f64>,
+    /// The depth image (resolved path).
+    pub depth_path: PathBuf,
+    /// The colour image (resolved path), if the robot has a `color` pattern.
+    pub color_path: Option<PathBuf>,
+    /// 1-based line of the pose file this frame comes from.
+    pub pose_line: usize,
+}
+
+/// A robot of an opened cell: everything resolved, parsed and checked.
+#[derive(Clone, Debug)]
+pub struct CellRobot {
+    /// The robot's name.
+    pub name: String,
+    /// Camera intrinsics (with `depth_scale`).
+    pub intrinsics: Intrinsics,
+    /// The hand-eye transform `T_ee_cam`, metres.
+    pub t_ee_cam: Isometry3<f64>,
+    /// The pose file (resolved path).
+    pub poses_path: PathBuf,
+    /// The frames, in pose-file order.
+    pub frames: Vec<CellFrame>,
+}
+
+impl CellRobot {
+    /// `T_base_cam = T_base_ee · T_ee_cam` of frame `i`.
+    pub fn t_base_cam(&self, i: usize) -> Isometry3<f64> {
+        self.frames[i].t_base_ee * self.t_ee_cam
+    }
+
+    /// Reads frame `i`'s depth image and checks its size against the intrinsics.
+    pub fn load_depth(&self, i: usize) -> Result<DepthImage> {
+        let f = &self.frames[i];
+        let img = read_depth_png(&f.depth_path)?;
+        self.check_size(&f.depth_path, img.width, img.height)?;
+        Ok(img)
+    }
+
+    fn check_size(&self, path: &Path, w: u32, h: u32) -> Result<()> {
+        if (w, h) != (self.intrinsics.width, self.intrinsics.height) {
+            return Err(Error::format(
+                path,
+                format!(
+                    "depth image is {w}x{h} but robot {:?}'s intrinsics say {}x{}",
+                    self.name, self.intrinsics.width, self.intrinsics.height
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// An opened cell dataset.
+#[derive(Clone, Debug)]
+pub struct Cell {
+    /// The cell directory.
+    pub dir: PathBuf,
+    /// The manifest as read.
+    pub manifest: CellManifest,
+    /// The robots, in manifest order.
+    pub robots: Vec<CellRobot>,
+}
+
+/// Substitutes the frame id into a path pattern.
+pub fn frame_path(dir: &Path, pattern: &str, frame: &str) -> PathBuf {
+    dir.join(pattern.replace(FRAME_PLACEHOLDER, frame))
+}
+
+fn read_hand_eye_file(path: &Path) -> Result<Isometry3<f64>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let v: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| Error::format(path, format!("not valid JSON: {e}")))?;
+    let m =
+        matrix_from_json(&v).map_err(|m| Error::format(path, format!("hand-eye T_ee_cam: {m}")))?;
+    isometry_from_rows(&m, "T_ee_cam").map_err(|e| Error::format(path, e.to_string()))
+}
+
+impl Cell {
+    /// Opens a cell directory: reads the manifest, every robot's poses, intrinsics and hand-eye, and checks that
+    /// every pose row has a 16-bit depth PNG of the intrinsics' size (reading only the PNG headers). Each
+    /// problem is an error naming the file and the row or field.
+    pub fn open(dir: impl AsRef<Path>) -> Result<Self> {
+        let dir = dir.as_ref().to_path_buf();
+        if !dir.is_dir() {
+            return Err(Error::io(
+                &dir,
+                std::io::Error::new(
+                    std::io::ErrorKind::NotFound,
+                    "the cell directory does not exist",
+                ),
+            ));
+        }
+        let manifest = CellManifest::read(&dir)?;
+        let mut robots = Vec::with_capacity(manifest.robots.len());
+        for entry in &manifest.robots {
+            robots.push(Self::open_robot(&dir, entry)?);
+        }
+        Ok(Cell {
+            dir,
+            manifest,
+            robots,
+        })
+    }
+
+    fn open_robot(dir: &Path, e: &RobotEntry) -> Result<CellRobot> {
+        let poses_path = dir.join(&e.poses);
+        let intr_path = dir.join(&e.intrinsics);
+        let (_, records) = read_poses(&poses_path, Some(e.pose_format))?;
+        let intrinsics = Intrinsics::from_json_file(&intr_path)?;
+        let t_ee_cam = match &e.hand_eye {
+            HandEyeSpec::Inline(t) => *t,
+            HandEyeSpec::File(p) => read_hand_eye_file(&dir.join(p))?,
+        };
+        let mut robot = CellRobot {
+            name: e.name.clone(),
+            intrinsics,
+            t_ee_cam,
+            poses_path: poses_path.clone(),
+            frames: Vec::with_capacity(records.len()),
+        };
+        for PoseRecord { frame, pose, line } in records {
+            let depth_path = frame_path(dir, &e.depth, &frame);
+            if !depth_path.is_file() {
+                return Err(Error::format(
+                    &poses_path,
+                    format!(
+                        "line {line}: frame {frame} has no depth image: {} does not exist (robot {:?}, pattern {:?})",
+                        depth_path.display(),
+                        e.name,
+                        e.depth
+                    ),
+                ));
+            }
+            let (w, h) = read_depth_png_header(&depth_path)?;
+            robot.check_size(&depth_path, w, h)?;
+            let color_path = e.color.as_ref().map(|c| frame_path(dir, c, &frame));
+            if let Some(c) = &color_path {
+                if !c.is_file() {
+                    return Err(Error::format(
+                        &poses_path,
+                        format!(
+                            "line {line}: frame {frame} has no colour image: {} does not exist",
+                            c.display()
+                        ),
+                    ));
+                }
+            }
+            robot.frames.push(CellFrame {
+                id: frame,
+                t_base_ee: pose,
+                depth_path,
+                color_path,
+                pose_line: line,
+            });
+        }
+        Ok(robot)
+    }
+
+    /// The robot called `name`; the error lists the robots there are.
+    pub fn robot(&self, name: &str) -> Result<&CellRobot> {
+        self.robots.iter().find(|r| r.name == name).ok_or_else(|| {
+            let names: Vec<&str> = self.robots.iter().map(|r| r.name.as_str()).collect();
+            Error::InvalidInput(format!(
+                "{}: no robot named {name:?} (robots: {names:?})",
+                self.dir.join(MANIFEST_FILE).display()
+            ))
+        })
+    }
+
+    /// The reference robot.
+    pub fn reference(&self) -> &CellRobot {
+        self.robots
+            .iter()
+            .find(|r| r.name == self.manifest.reference)
+            .expect("validated manifest names its reference")
+    }
+
+    /// The ground truth, if the cell has `ground_truth.json`.
+    pub fn ground_truth(&self) -> Result<Option<GroundTruth>> {
+        GroundTruth::read(&self.dir)
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,39 @@
+//! `depthcal convert`: convert a pose file between KUKA XYZ-ABC, 4x4 matrix and x,y,z+quaternion rows.
+
+use clap::Args as ClapArgs;
+use depthcal::geometry::pose::{format_poses, read_poses, write_poses, PoseFormat};
+use std::path::PathBuf;
+
+/// Arguments of `depthcal convert`.
+#[derive(ClapArgs)]
+pub struct Args {
+    /// The pose CSV file to convert.
+    pub poses: PathBuf,
+    /// Input format: kuka, matrix or xyzquat (default: recognised from the header line).
+    #[arg(long)]
+    pub from: Option<PoseFormat>,
+    /// Output format: kuka, matrix or xyzquat.
+    #[arg(long)]
+    pub to: PoseFormat,
+    /// Output file (written atomically); default: stdout.
+    #[arg(long, short)]
+    pub output: Option<PathBuf>,
+}
+
+/// Runs `depthcal convert`.
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let (from, records) = read_poses(&a.poses, a.from)?;
+    match &a.output {
+        Some(out) => {
+            write_poses(out, &records, a.to)?;
+            eprintln!(
+                "converted {} poses from {from} to {} -> {}",
+                records.len(),
+                a.to,
+                out.display()
+            );
+        }
+        None => print!("{}", format_poses(&records, a.to)),
+    }
+    Ok(())
+}

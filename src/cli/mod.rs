@@ -1,0 +1,70 @@
+//! Command-line parsing and dispatch. Each subcommand lives in its own file; no algorithm lives here.
+
+use clap::{Parser, Subcommand};
+
+mod convert;
+mod fuse;
+mod output;
+mod register;
+
+/// depthcal: depth-only calibration of multi-robot cells, and point-cloud registration.
+#[derive(Parser)]
+#[command(name = "depthcal", version, about, long_about = None)]
+struct Cli {
+    /// Worker threads (default: all cores). Results do not depend on it.
+    #[arg(long, global = true)]
+    threads: Option<usize>,
+    /// More log output on stderr (-v info, -vv debug).
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Register SOURCE onto TARGET (FPFH + RANSAC, then trimmed robust ICP).
+    Register(register::Args),
+    /// Fuse one robot's depth frames of a cell dataset into a cloud in its base frame.
+    Fuse(fuse::Args),
+    /// Convert a pose file between kuka (XYZ-ABC), matrix (4x4) and xyzquat formats.
+    Convert(convert::Args),
+}
+
+/// Parses the command line, runs the command, and returns the process exit code.
+pub fn run() -> i32 {
+    let cli = Cli::parse();
+    let level = match cli.verbose {
+        0 => "warn",
+        1 => "info",
+        _ => "debug",
+    };
+    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or(level))
+        .format_timestamp(None)
+        .init();
+    if let Some(n) = cli.threads {
+        if n == 0 {
+            eprintln!("error: --threads must be at least 1");
+            return 2;
+        }
+        if let Err(e) = rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build_global()
+        {
+            eprintln!("error: cannot start {n} threads: {e}");
+            return 2;
+        }
+    }
+    let result = match cli.command {
+        Command::Register(a) => register::run(a),
+        Command::Fuse(a) => fuse::run(a),
+        Command::Convert(a) => convert::run(a),
+    };
+    match result {
+        Ok(()) => 0,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            1
+        }
+    }
+}

@@ -1,0 +1,170 @@
+//! `depthcal register SOURCE TARGET`.
+
+use super::output::{matrix4_json, matrix4_text, matrix6_json, spinner, timings_json};
+use anyhow::{Context, Result};
+use clap::Args as ClapArgs;
+use depthcal::io::{read_cloud, read_matrix_file, write_cloud};
+use depthcal::registration::{register_with_progress, RegisterConfig};
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Arguments of `depthcal register`.
+#[derive(ClapArgs)]
+pub struct Args {
+    /// The cloud to move (.ply, .pcd, .xyz/.txt/.pts, .npy).
+    source: PathBuf,
+    /// The cloud to align to.
+    target: PathBuf,
+    /// Print one JSON object on stdout.
+    #[arg(long)]
+    json: bool,
+    /// Write the source, transformed into the target frame, to this file (.ply or .xyz).
+    #[arg(long, short)]
+    output: Option<PathBuf>,
+    /// Initial guess (a 4x4 matrix file, or a previous --json output): skips the global stage.
+    #[arg(long)]
+    init: Option<PathBuf>,
+    /// Seed of the randomised steps (results are identical for a seed at any thread count).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Global-stage voxel size in the clouds' unit (default: chosen from the data).
+    #[arg(long)]
+    voxel: Option<f64>,
+    /// A JSON file with a (partial) registration configuration; see the README.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// A known true SOURCE→TARGET transform (4x4 matrix file): also print the error against it.
+    #[arg(long)]
+    truth: Option<PathBuf>,
+}
+
+/// Runs the command.
+pub fn run(a: Args) -> Result<()> {
+    let start = Instant::now();
+    let mut cfg: RegisterConfig = match &a.config {
+        Some(p) => {
+            let text = std::fs::read_to_string(p).with_context(|| format!("{}", p.display()))?;
+            serde_json::from_str(&text)
+                .with_context(|| format!("{}: invalid configuration", p.display()))?
+        }
+        None => RegisterConfig::default(),
+    };
+    cfg.seed = a.seed;
+    if a.voxel.is_some() {
+        cfg.voxel = a.voxel;
+    }
+    let init = a.init.as_ref().map(read_matrix_file).transpose()?;
+    let truth = a.truth.as_ref().map(read_matrix_file).transpose()?;
+    let pb = spinner("reading clouds");
+    let t_read = Instant::now();
+    let source = read_cloud(&a.source)?;
+    let target = read_cloud(&a.target)?;
+    let read_ms = t_read.elapsed().as_secs_f64() * 1e3;
+    let mut reg = register_with_progress(&source, &target, init.as_ref(), &cfg, &mut |stage| {
+        pb.set_message(stage.to_string())
+    })
+    .with_context(|| {
+        format!(
+            "registering {} onto {}",
+            a.source.display(),
+            a.target.display()
+        )
+    })?;
+    reg.timings_ms.insert(0, ("read".into(), read_ms));
+    if let Some(out) = &a.output {
+        pb.set_message("writing");
+        let t_w = Instant::now();
+        let moved = source.transformed(&reg.transform);
+        write_cloud(out, &moved)?;
+        reg.timings_ms
+            .push(("write".into(), t_w.elapsed().as_secs_f64() * 1e3));
+    }
+    pb.finish_and_clear();
+    let total_ms = start.elapsed().as_secs_f64() * 1e3;
+    for w in &reg.warnings {
+        eprintln!("warning: {w}");
+    }
+    let error = truth.map(|t| depthcal::geometry::transform::pose_error(&reg.transform, &t));
+    if a.json {
+        let g = reg.global.as_ref().map(|g| {
+            serde_json::json!({
+                "correspondences": g.correspondences,
+                "inliers": g.inliers,
+                "iterations": g.iterations,
+                "fitness": g.fitness,
+                "transform": matrix4_json(&g.transform),
+            })
+        });
+        let v = serde_json::json!({
+            "source": a.source,
+            "target": a.target,
+            "transform": matrix4_json(&reg.transform),
+            "fitness": reg.fitness,
+            "inlier_rmse": reg.inlier_rmse,
+            "overlap": reg.overlap,
+            "converged": reg.converged,
+            "iterations": reg.iterations,
+            "covariance": matrix6_json(&reg.covariance),
+            "information": matrix6_json(&reg.information),
+            "covariance_parameters": "[rx, ry, rz (rad), tx, ty, tz (cloud units)], left increment about the target origin",
+            "degenerate": reg.degeneracy.is_degenerate(),
+            "degeneracy": reg.degeneracy,
+            "voxel": reg.voxel,
+            "spacing": reg.spacing,
+            "points": {"source": source.len(), "target": target.len(),
+                       "source_downsampled": reg.global_points[0], "target_downsampled": reg.global_points[1]},
+            "global": g,
+            "seed": a.seed,
+            "warnings": reg.warnings,
+            "error_vs_truth": error.map(|(r, t)| serde_json::json!({"rotation_deg": r, "translation": t})),
+            "timings_ms": timings_json(&reg.timings_ms),
+            "total_ms": total_ms,
+        });
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        println!("{} -> {}", a.source.display(), a.target.display());
+        println!(
+            "transform (maps source into target):\n{}",
+            matrix4_text(&reg.transform)
+        );
+        let q = reg.transform.rotation;
+        let tr = reg.transform.translation.vector;
+        println!(
+            "xyz {:.6} {:.6} {:.6}  quaternion (x y z w) {:.6} {:.6} {:.6} {:.6}  rotation {:.3} deg",
+            tr.x,
+            tr.y,
+            tr.z,
+            q.i,
+            q.j,
+            q.k,
+            q.w,
+            q.angle().to_degrees()
+        );
+        println!(
+            "fitness {:.3}  inlier RMSE {:.5}  overlap {:.3}  converged {}  ICP iterations {}",
+            reg.fitness, reg.inlier_rmse, reg.overlap, reg.converged, reg.iterations
+        );
+        let sd: Vec<String> = (0..6)
+            .map(|k| format!("{:.2e}", reg.covariance[(k, k)].max(0.0).sqrt()))
+            .collect();
+        println!("1-sigma [rx ry rz (rad), tx ty tz]: {}", sd.join(" "));
+        if let Some(g) = &reg.global {
+            println!(
+                "global stage: {} correspondences, {} inliers, {} RANSAC samples, voxel {:.4}",
+                g.correspondences, g.inliers, g.iterations, reg.voxel
+            );
+        }
+        if let Some((r, t)) = error {
+            println!(
+                "error against the truth: rotation {r:.4} deg, translation {t:.6} (cloud units)"
+            );
+        }
+        let times: Vec<String> = reg
+            .timings_ms
+            .iter()
+            .map(|(k, v)| format!("{k} {v:.1}"))
+            .collect();
+        println!("timings (ms): {}  total {total_ms:.1}", times.join(", "));
+    }
+    Ok(())
+}

@@ -1,0 +1,26 @@
+//! # depthcal
+//!
+//! A point-cloud registration engine for depth-only calibration of multi-robot cells.
+//!
+//! The pipeline is a chain of plain functions over plain data (see `ARCHITECTURE` in the README):
+//! [`io`] reads clouds, [`preprocess`] downsamples and estimates normals, [`features`] computes FPFH,
+//! [`registration`] matches features, runs RANSAC and refines with trimmed robust ICP.
+//!
+//! Conventions: `T_a_b` maps coordinates in frame b to frame a (`p_a = T_a_b · p_b`); SI units inside
+//! (metres, radians); point coordinates are `f32`, transforms and sums `f64`; every randomised step takes a
+//! seed and gives bit-identical output at any thread count.
+
+pub mod camera;
+pub mod cell;
+pub mod error;
+pub mod features;
+pub mod fusion;
+pub mod geometry;
+pub mod index;
+pub mod io;
+pub mod preprocess;
+pub mod registration;
+pub mod sim;
+
+pub use error::{Error, Result};
+pub use geometry::PointCloud;

@@ -1,0 +1,16 @@
+//! Registration: correspondences, RANSAC, trimmed robust ICP, and the `register` pipeline.
+
+pub mod correspondence;
+pub mod icp;
+pub mod kernel;
+pub mod ransac;
+pub mod rigid_fit;
+
+pub use icp::{icp, IcpConfig, IcpFactor, IcpResult, Trim};
+pub use kernel::RobustKernel;
+pub use ransac::{ransac, RansacConfig, RansacResult};
+pub use rigid_fit::rigid_fit;
+pub mod pipeline;
+pub mod quality;
+
+pub use pipeline::{register, register_with_progress, RegisterConfig, Registration};

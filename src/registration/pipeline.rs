@@ -1,0 +1,418 @@
+//! The `register` pipeline: automatic scale → voxel pyramid → normals → FPFH → matching → RANSAC →
+//! coarse-to-fine trimmed robust ICP → quality. Each stage is timed.
+
+use crate::error::{Error, Result};
+use crate::features::{compute_fpfh, Fpfh, FpfhConfig};
+use crate::geometry::cloud::to_v64;
+use crate::geometry::PointCloud;
+use crate::index::KdIndex;
+use crate::preprocess::normals::{estimate_normals, orient, NormalConfig, Orientation};
+use crate::preprocess::scale::{estimate_spacing, voxel_for_target, ScaleConfig};
+use crate::preprocess::voxel::voxel_downsample;
+use crate::registration::correspondence::{match_features, MatchConfig};
+use crate::registration::icp::{icp, IcpConfig, IcpResult};
+use crate::registration::quality::{covariance, degeneracy, Degeneracy};
+use crate::registration::ransac::{ransac, RansacConfig};
+use nalgebra::{Isometry3, Matrix6, Vector3};
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// Everything `register` can be told. Scale-dependent values are multiples of the voxel size, which is
+/// itself chosen from the data unless given.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(default)]
+pub struct RegisterConfig {
+    /// Voxel size of the global stage (cloud units); `None` chooses it from the data.
+    pub voxel: Option<f64>,
+    /// How the automatic voxel is chosen.
+    pub scale: ScaleConfig,
+    /// Normal search radius in voxels (default 2).
+    pub normal_radius_voxels: f64,
+    /// Normal neighbours at most (default 30).
+    pub normal_max_neighbors: usize,
+    /// How normals are oriented before FPFH; `None` (the default) orients each normal toward the centroid of
+    /// its FPFH neighbourhood ([`Orientation::LocalCentroid`]), which is consistent between partially
+    /// overlapping clouds whatever their poses.
+    pub orientation: Option<Orientation>,
+    /// FPFH radius in voxels (default 5).
+    pub fpfh_radius_voxels: f64,
+    /// FPFH neighbours at most (default 100).
+    pub fpfh_max_neighbors: usize,
+    /// Feature matching.
+    pub matching: MatchConfig,
+    /// RANSAC (its `inlier_distance` is set from `ransac_distance_voxels`, its `seed` from `seed`).
+    pub ransac: RansacConfig,
+    /// RANSAC inlier distance in voxels (default 1.5).
+    pub ransac_distance_voxels: f64,
+    /// ICP (distances and tolerances are set per level from the voxel).
+    pub icp: IcpConfig,
+    /// Number of ICP resolutions: voxel, voxel/2, voxel/4, ... (default 2).
+    pub icp_levels: usize,
+    /// Finest ICP voxel never goes below this many point spacings (default 1.5).
+    pub icp_min_voxel_spacings: f64,
+    /// ICP correspondence distance at the first level, in voxels (default 3); halves with the voxel.
+    pub icp_distance_voxels: f64,
+    /// Most source points used by one ICP level (default 20 000; a deterministic stride subsample).
+    pub icp_max_source_points: usize,
+    /// Relative eigenvalue below which a direction is reported as unconstrained (default 1e-3).
+    pub degeneracy_threshold: f64,
+    /// Random seed of every randomised step.
+    pub seed: u64,
+}
+
+impl Default for RegisterConfig {
+    fn default() -> Self {
+        RegisterConfig {
+            voxel: None,
+            scale: ScaleConfig::default(),
+            normal_radius_voxels: 2.0,
+            normal_max_neighbors: 30,
+            orientation: None,
+            fpfh_radius_voxels: 5.0,
+            fpfh_max_neighbors: 100,
+            matching: MatchConfig::default(),
+            ransac: RansacConfig::default(),
+            ransac_distance_voxels: 1.5,
+            icp: IcpConfig::default(),
+            icp_levels: 2,
+            icp_min_voxel_spacings: 1.5,
+            icp_distance_voxels: 3.0,
+            icp_max_source_points: 20_000,
+            degeneracy_threshold: 1e-3,
+            seed: 0,
+        }
+    }
+}
+
+/// A summary of the global stage.
+#[derive(Clone, Debug, Serialize)]
+pub struct GlobalSummary {
+    /// Feature correspondences.
+    pub correspondences: usize,
+    /// Correspondences consistent with the chosen hypothesis.
+    pub inliers: usize,
+    /// RANSAC samples drawn.
+    pub iterations: usize,
+    /// Fitness of the chosen hypothesis on the downsampled clouds.
+    pub fitness: f64,
+    /// The transform before ICP.
+    pub transform: Isometry3<f64>,
+}
+
+/// The result of [`register`].
+#[derive(Clone, Debug)]
+pub struct Registration {
+    /// Maps source points into the target frame.
+    pub transform: Isometry3<f64>,
+    /// Fraction of (finest-level) source points with a target point within the final correspondence distance.
+    pub fitness: f64,
+    /// RMS distance of those pairs (cloud units).
+    pub inlier_rmse: f64,
+    /// Overlap ratio estimated by the trimming.
+    pub overlap: f64,
+    /// True when every ICP level met its termination tolerances.
+    pub converged: bool,
+    /// ICP iterations over all levels.
+    pub iterations: usize,
+    /// Information matrix `JᵀWJ` (order ω then v, about the target origin).
+    pub information: Matrix6<f64>,
+    /// Covariance of `[ω (rad), v (cloud units)]` for a left increment about the target origin.
+    pub covariance: Matrix6<f64>,
+    /// Degeneracy analysis.
+    pub degeneracy: Degeneracy,
+    /// The global stage, unless an initial guess was given.
+    pub global: Option<GlobalSummary>,
+    /// Voxel size of the global stage (cloud units).
+    pub voxel: f64,
+    /// Median point spacing of source and target (cloud units).
+    pub spacing: [f64; 2],
+    /// Points in the global-stage clouds (source, target).
+    pub global_points: [usize; 2],
+    /// Wall time of each stage in milliseconds, in order.
+    pub timings_ms: Vec<(String, f64)>,
+    /// Things the user should know (dropped points, degeneracy, non-convergence...).
+    pub warnings: Vec<String>,
+}
+
+struct Timer {
+    t: Instant,
+    out: Vec<(String, f64)>,
+}
+impl Timer {
+    fn lap(&mut self, name: &str) {
+        let now = Instant::now();
+        self.out
+            .push((name.into(), (now - self.t).as_secs_f64() * 1e3));
+        self.t = now;
+    }
+}
+
+/// A cloud prepared for one resolution: points, normals, index.
+struct Level {
+    cloud: PointCloud,
+    index: KdIndex,
+}
+
+fn prepare_level(cloud: &PointCloud, voxel: f64, cfg: &RegisterConfig) -> Result<Level> {
+    let mut down = voxel_downsample(cloud, voxel)?;
+    down.normals = None;
+    let index = KdIndex::new(&down.points);
+    let mut normals = estimate_normals(
+        &down.points,
+        &index,
+        &NormalConfig {
+            radius: Some(cfg.normal_radius_voxels * voxel),
+            max_neighbors: cfg.normal_max_neighbors,
+        },
+    );
+    let orientation = cfg
+        .orientation
+        .unwrap_or(Orientation::LocalCentroid(cfg.fpfh_radius_voxels * voxel));
+    orient(&down.points, &mut normals, orientation);
+    down.normals = Some(normals);
+    Ok(Level { cloud: down, index })
+}
+
+fn check_cloud(c: &PointCloud, what: &str) -> Result<()> {
+    if c.len() < 10 {
+        return Err(Error::InvalidInput(format!(
+            "the {what} cloud has {} finite points; registration needs at least 10",
+            c.len()
+        )));
+    }
+    if c.extent() <= 0.0 {
+        return Err(Error::InvalidInput(format!(
+            "all points of the {what} cloud coincide"
+        )));
+    }
+    Ok(())
+}
+
+/// Registers `source` onto `target`: returns the transform mapping source points into the target frame.
+///
+/// With `init`, the global stage is skipped and ICP starts from it. Non-finite points are dropped (and
+/// counted in the warnings).
+pub fn register(
+    source: &PointCloud,
+    target: &PointCloud,
+    init: Option<&Isometry3<f64>>,
+    cfg: &RegisterConfig,
+) -> Result<Registration> {
+    register_with_progress(source, target, init, cfg, &mut |_| {})
+}
+
+/// As [`register`], calling `progress` with the name of each stage as it starts.
+pub fn register_with_progress(
+    source: &PointCloud,
+    target: &PointCloud,
+    init: Option<&Isometry3<f64>>,
+    cfg: &RegisterConfig,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Registration> {
+    let mut timer = Timer {
+        t: Instant::now(),
+        out: Vec::new(),
+    };
+    progress("measuring scale");
+    let mut warnings = Vec::new();
+    let mut src = source.clone();
+    let mut tgt = target.clone();
+    for (c, what) in [(&mut src, "source"), (&mut tgt, "target")] {
+        let dropped = c.drop_non_finite();
+        if dropped > 0 {
+            let msg = format!("{dropped} {what} points with NaN/infinite coordinates were dropped");
+            log::warn!("{msg}");
+            warnings.push(msg);
+        }
+    }
+    check_cloud(&src, "source")?;
+    check_cloud(&tgt, "target")?;
+    // Scale.
+    let spacing = [
+        estimate_spacing(&src.points)?,
+        estimate_spacing(&tgt.points)?,
+    ];
+    let min_voxel = cfg.scale.min_voxel_per_spacing * spacing[0].max(spacing[1]);
+    let voxel = match cfg.voxel {
+        Some(v) if v > 0.0 && v.is_finite() => v,
+        Some(v) => {
+            return Err(Error::Config {
+                field: "voxel".into(),
+                msg: format!("must be a positive length, got {v}"),
+            })
+        }
+        None => {
+            let vs = voxel_for_target(&src.points, cfg.scale.target_points, min_voxel)?;
+            let vt = voxel_for_target(&tgt.points, cfg.scale.target_points, min_voxel)?;
+            (vs * vt).sqrt()
+        }
+    };
+    log::info!(
+        "spacing {:.4} / {:.4}, voxel {voxel:.4}",
+        spacing[0],
+        spacing[1]
+    );
+    timer.lap("scale");
+    progress("downsampling, normals");
+
+    // Global stage.
+    let s0 = prepare_level(&src, voxel, cfg)?;
+    let t0 = prepare_level(&tgt, voxel, cfg)?;
+    timer.lap("downsample_normals");
+    progress("features");
+    let (initial, global) = match init {
+        Some(t) => (*t, None),
+        None => {
+            let fcfg = FpfhConfig {
+                radius: cfg.fpfh_radius_voxels * voxel,
+                max_neighbors: cfg.fpfh_max_neighbors,
+            };
+            let sf: Vec<Fpfh> = compute_fpfh(
+                &s0.cloud.points,
+                s0.cloud.normals.as_ref().unwrap(),
+                &s0.index,
+                &fcfg,
+            );
+            let tf: Vec<Fpfh> = compute_fpfh(
+                &t0.cloud.points,
+                t0.cloud.normals.as_ref().unwrap(),
+                &t0.index,
+                &fcfg,
+            );
+            timer.lap("fpfh");
+            progress("matching");
+            let corr = match_features(&sf, &tf, &cfg.matching);
+            timer.lap("match");
+            progress("RANSAC");
+            let rcfg = RansacConfig {
+                inlier_distance: cfg.ransac_distance_voxels * voxel,
+                seed: cfg.seed,
+                ..cfg.ransac.clone()
+            };
+            let r = ransac(&s0.cloud.points, &t0.cloud.points, &t0.index, &corr, &rcfg)?;
+            timer.lap("ransac");
+            progress("ICP");
+            log::info!(
+                "global: {} correspondences, {} inliers, {} samples, fitness {:.3}",
+                r.correspondence_count,
+                r.inlier_count,
+                r.iterations,
+                r.fitness
+            );
+            (
+                r.transform,
+                Some(GlobalSummary {
+                    correspondences: r.correspondence_count,
+                    inliers: r.inlier_count,
+                    iterations: r.iterations,
+                    fitness: r.fitness,
+                    transform: r.transform,
+                }),
+            )
+        }
+    };
+
+    // Coarse-to-fine ICP.
+    let finest = cfg.icp_min_voxel_spacings * spacing[0].max(spacing[1]);
+    let mut t = initial;
+    let mut converged = true;
+    let mut iterations = 0;
+    let mut last: Option<(IcpResult, Vec<[f32; 3]>)> = None;
+    let levels = cfg.icp_levels.max(1);
+    for level in 0..levels {
+        let v = voxel / (1u64 << level) as f64;
+        if level > 0 && v < finest {
+            break;
+        }
+        let level_start = Instant::now();
+        let (sl, tl) = if level == 0 {
+            (None, None)
+        } else {
+            (
+                Some(voxel_downsample(&src, v)?),
+                Some(prepare_level(&tgt, v, cfg)?),
+            )
+        };
+        let s_points = sl.as_ref().map_or(&s0.cloud.points, |c| &c.points);
+        let tlev = tl.as_ref().unwrap_or(&t0);
+        let step = s_points.len().div_ceil(cfg.icp_max_source_points.max(100));
+        let s_sub: Vec<[f32; 3]> = s_points.iter().step_by(step.max(1)).copied().collect();
+        let icfg = IcpConfig {
+            max_correspondence_distance: cfg.icp_distance_voxels * v,
+            translation_tolerance: 1e-3 * v,
+            ..cfg.icp.clone()
+        };
+        let prep_ms = level_start.elapsed().as_secs_f64() * 1e3;
+        let r = icp(
+            &s_sub,
+            &tlev.cloud.points,
+            tlev.cloud.normals.as_deref(),
+            &tlev.index,
+            &t,
+            &icfg,
+        )?;
+        log::info!(
+            "icp level {level} (voxel {v:.4}, {} source / {} target points, prepared in {prep_ms:.1} ms, ran in {:.1} ms): {} iterations, converged {}, fitness {:.3}, overlap {:.3}, rmse {:.5}",
+            s_sub.len(),
+            tlev.cloud.len(),
+            level_start.elapsed().as_secs_f64() * 1e3 - prep_ms,
+            r.iterations,
+            r.converged,
+            r.fitness,
+            r.overlap,
+            r.inlier_rmse
+        );
+        t = r.transform;
+        converged &= r.converged;
+        iterations += r.iterations;
+        last = Some((r, s_sub));
+    }
+    let (r, s_sub) = last.expect("at least one ICP level");
+    timer.lap("icp");
+
+    // Quality.
+    let moved: Vec<Vector3<f64>> = s_sub
+        .iter()
+        .map(|p| t * nalgebra::Point3::from(to_v64(p)))
+        .map(|p| p.coords)
+        .collect();
+    let center = moved.iter().sum::<Vector3<f64>>() / moved.len().max(1) as f64;
+    let length = (moved
+        .iter()
+        .map(|p| (p - center).norm_squared())
+        .sum::<f64>()
+        / moved.len().max(1) as f64)
+        .sqrt();
+    let deg = degeneracy(&r.information, &center, length, cfg.degeneracy_threshold);
+    if deg.is_degenerate() {
+        let msg = format!(
+            "the geometry leaves some motion unconstrained: {} (the result may slide along it)",
+            deg.describe()
+        );
+        log::warn!("{msg}");
+        warnings.push(msg);
+    }
+    if !converged {
+        warnings
+            .push("ICP did not meet its convergence tolerances within the iteration budget".into());
+    }
+    let cov = covariance(&r.information, r.residual_sigma * r.residual_sigma);
+    timer.lap("quality");
+    Ok(Registration {
+        transform: t,
+        fitness: r.fitness,
+        inlier_rmse: r.inlier_rmse,
+        overlap: r.overlap,
+        converged,
+        iterations,
+        information: r.information,
+        covariance: cov,
+        degeneracy: deg,
+        global,
+        voxel,
+        spacing,
+        global_points: [s0.cloud.len(), t0.cloud.len()],
+        timings_ms: timer.out,
+        warnings,
+    })
+}

@@ -1,0 +1,416 @@
+//! RANSAC over 3-point correspondence samples, deterministic for a seed at any thread count.
+//!
+//! * **Sampling.** With `guided` (default) sampling follows the pairwise length-consistency graph of the
+//!   correspondences: a first match is drawn with probability proportional to how many matches are
+//!   consistent with it, the other two among those. Inlier matches are all mutually consistent, so this
+//!   finds an all-inlier triple orders of magnitude sooner than uniform sampling when inliers are rare
+//!   (low overlap). Without it, three distinct matches are drawn uniformly.
+//! * **Pre-checks** before any fit: edge-length similarity of the two triangles, then, after the
+//!   closed-form fit, each of the three pairs within the inlier distance.
+//! * **Scoring**: number of correspondences within the inlier distance.
+//! * **Early stop** by confidence, between fixed-size batches, with the success probability of the
+//!   sampler actually used (for guided sampling, estimated from the best inlier set).
+//! * **Verification**: the best few distinct hypotheses are refitted on their inliers and re-scored on the
+//!   whole (downsampled) source cloud against the target (the fraction of source points with a target
+//!   neighbour within the inlier distance); the best of those wins.
+//!
+//! Iteration `k` draws from its own random stream (`Rng::stream(seed, k)`) and batches are reduced in
+//! iteration order, so the result is bit-identical whatever the number of threads.
+
+use crate::error::{Error, Result};
+use crate::geometry::cloud::{to_p64, transform_point};
+use crate::geometry::transform::pose_error;
+use crate::geometry::Rng;
+use crate::index::KdIndex;
+use crate::registration::correspondence::Correspondence;
+use crate::registration::rigid_fit::rigid_fit;
+use nalgebra::{Isometry3, Point3};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Parameters of [`ransac`].
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(default)]
+pub struct RansacConfig {
+    /// A correspondence is an inlier when `‖T·p − q‖` is below this (cloud units; the pipeline uses
+    /// 1.5 × voxel). Must be set.
+    pub inlier_distance: f64,
+    /// Edge-length similarity required of a sample's two triangles, in (0, 1] (default 0.9).
+    pub edge_similarity: f64,
+    /// Largest number of samples drawn (default 100 000).
+    pub max_iterations: usize,
+    /// Fewest samples drawn whatever the stop rule says (default 20 000): a wrong but self-consistent
+    /// hypothesis early on must not end the search (sampling is cheap next to feature computation).
+    pub min_iterations: usize,
+    /// Stop once an all-inlier sample has been drawn with this probability (default 0.9999).
+    pub confidence: f64,
+    /// Sample along the length-consistency graph (default true; see the module docs).
+    pub guided: bool,
+    /// How many distinct best hypotheses are verified on the full clouds (default 50).
+    pub verify_top: usize,
+    /// Seed of the sampler.
+    pub seed: u64,
+}
+
+impl Default for RansacConfig {
+    fn default() -> Self {
+        RansacConfig {
+            inlier_distance: 0.0,
+            edge_similarity: 0.9,
+            max_iterations: 100_000,
+            min_iterations: 20_000,
+            confidence: 0.9999,
+            guided: true,
+            verify_top: 50,
+            seed: 0,
+        }
+    }
+}
+
+/// What [`ransac`] found.
+#[derive(Clone, Debug)]
+pub struct RansacResult {
+    /// Source-to-target transform.
+    pub transform: Isometry3<f64>,
+    /// Correspondences within the inlier distance of `transform`.
+    pub inlier_count: usize,
+    /// Number of correspondences considered.
+    pub correspondence_count: usize,
+    /// Samples drawn.
+    pub iterations: usize,
+    /// Fraction of source points with a target neighbour within the inlier distance.
+    pub fitness: f64,
+    /// Hypotheses verified on the clouds.
+    pub verified: usize,
+}
+
+/// Samples drawn per parallel batch; the stop rule is checked between batches.
+const BATCH: usize = 2048;
+/// Above this many correspondences the consistency graph is not built (its cost grows quadratically).
+const MAX_GRAPH: usize = 12_000;
+
+struct Hypothesis {
+    count: usize,
+    iteration: usize,
+    t: Isometry3<f64>,
+}
+
+/// The consistency graph: `adj[i]` lists the matches whose pairwise length agrees with match `i`.
+fn consistency_graph(ps: &[[f32; 3]], qs: &[[f32; 3]], tol: f32, min_len: f32) -> Vec<Vec<u32>> {
+    let n = ps.len();
+    (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let (pi, qi) = (ps[i], qs[i]);
+            let mut v = Vec::new();
+            for j in 0..n {
+                if j == i {
+                    continue;
+                }
+                let dp = dist(&pi, &ps[j]);
+                let dq = dist(&qi, &qs[j]);
+                if (dp - dq).abs() < tol && dp > min_len && dq > min_len {
+                    v.push(j as u32);
+                }
+            }
+            v
+        })
+        .collect()
+}
+
+#[inline]
+fn dist(a: &[f32; 3], b: &[f32; 3]) -> f32 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// Robust global registration from putative correspondences (see the module docs).
+///
+/// `source` and `target` are the (downsampled) clouds the correspondences index into, and `target_index`
+/// a kd-tree over `target`.
+pub fn ransac(
+    source: &[[f32; 3]],
+    target: &[[f32; 3]],
+    target_index: &KdIndex,
+    corr: &[Correspondence],
+    cfg: &RansacConfig,
+) -> Result<RansacResult> {
+    if cfg.inlier_distance.is_nan() || cfg.inlier_distance <= 0.0 {
+        return Err(Error::Config {
+            field: "ransac.inlier_distance".into(),
+            msg: "must be positive".into(),
+        });
+    }
+    if corr.len() < 3 {
+        return Err(Error::Failed(format!(
+            "only {} feature correspondences: too few for RANSAC (the clouds share too little distinctive geometry)",
+            corr.len()
+        )));
+    }
+    let ps: Vec<[f32; 3]> = corr.iter().map(|c| source[c.source as usize]).collect();
+    let qs: Vec<[f32; 3]> = corr.iter().map(|c| target[c.target as usize]).collect();
+    let tau = cfg.inlier_distance;
+    let tau2 = (tau * tau) as f32;
+    let n = corr.len();
+    let guided = cfg.guided && n <= MAX_GRAPH;
+    let graph = if guided {
+        consistency_graph(&ps, &qs, 2.0 * tau as f32, tau as f32)
+    } else {
+        Vec::new()
+    };
+    // Cumulative degree for degree-proportional sampling of the first match.
+    let cum: Vec<u64> = graph
+        .iter()
+        .scan(0u64, |s, a| {
+            *s += a.len().saturating_sub(1) as u64;
+            Some(*s)
+        })
+        .collect();
+    let total_degree = cum.last().copied().unwrap_or(0);
+    let guided = guided && total_degree > 0;
+    let sim = cfg.edge_similarity;
+    let edge_ok = |a: usize, b: usize| {
+        let dp = dist(&ps[a], &ps[b]) as f64;
+        let dq = dist(&qs[a], &qs[b]) as f64;
+        dp.min(dq) >= sim * dp.max(dq)
+    };
+
+    let count_inliers = |t: &Isometry3<f64>| -> usize {
+        let m = Affine32::from(t);
+        ps.iter()
+            .zip(&qs)
+            .filter(|(p, q)| m.dist2(p, q) < tau2)
+            .count()
+    };
+
+    let sample = |it: usize| -> Option<Hypothesis> {
+        let mut rng = Rng::stream(cfg.seed, it as u64);
+        let (a, b, c) = if guided {
+            let r = rng.next_u64() % total_degree;
+            let a = cum.partition_point(|&x| x <= r);
+            let nb = &graph[a];
+            if nb.len() < 2 {
+                return None;
+            }
+            let b = nb[rng.below(nb.len())] as usize;
+            let c = nb[rng.below(nb.len())] as usize;
+            if b == c || graph[b].binary_search(&(c as u32)).is_err() {
+                return None;
+            }
+            (a, b, c)
+        } else {
+            let a = rng.below(n);
+            let b = rng.below(n);
+            let c = rng.below(n);
+            if a == b || b == c || a == c {
+                return None;
+            }
+            (a, b, c)
+        };
+        if !(edge_ok(a, b) && edge_ok(b, c) && edge_ok(a, c)) {
+            return None;
+        }
+        let src = [to_p64(&ps[a]), to_p64(&ps[b]), to_p64(&ps[c])];
+        let dst = [to_p64(&qs[a]), to_p64(&qs[b]), to_p64(&qs[c])];
+        let t = rigid_fit(&src, &dst, None)?;
+        for k in 0..3 {
+            if (t * src[k] - dst[k]).norm() > tau {
+                return None;
+            }
+        }
+        Some(Hypothesis {
+            count: count_inliers(&t),
+            iteration: it,
+            t,
+        })
+    };
+
+    let keep = cfg.verify_top.max(1);
+    let mut top: Vec<Hypothesis> = Vec::new();
+    let mut done = 0;
+    let max_it = cfg.max_iterations.max(1);
+    let ln_fail = (1.0 - cfg.confidence.clamp(0.0, 0.999_999_999)).ln();
+    while done < max_it {
+        let end = (done + BATCH).min(max_it);
+        let mut batch: Vec<Hypothesis> = (done..end).into_par_iter().filter_map(sample).collect();
+        done = end;
+        batch.sort_by(|x, y| y.count.cmp(&x.count).then(x.iteration.cmp(&y.iteration)));
+        merge_top(&mut top, batch, keep, tau);
+        let Some(best) = top.first() else { continue };
+        // Probability that one sample is all-inlier, for the sampler in use.
+        let p = if guided {
+            guided_success_probability(&best.t, &ps, &qs, tau2, &graph, total_degree)
+        } else {
+            let w = best.count as f64 / n as f64;
+            w * w * w
+        };
+        if p > 0.0 {
+            let needed = if p >= 1.0 {
+                1.0
+            } else {
+                ln_fail / (1.0 - p).ln()
+            };
+            if done >= cfg.min_iterations && done as f64 >= needed {
+                break;
+            }
+        }
+    }
+    if top.is_empty() {
+        return Err(Error::Failed(format!(
+            "RANSAC found no consistent hypothesis in {done} samples of {n} correspondences"
+        )));
+    }
+    // Verification on the clouds (a stride sample of at most 2000 source points is plenty to rank them).
+    let step = source.len().div_ceil(2000).max(1);
+    let sample: Vec<[f32; 3]> = source.iter().step_by(step).copied().collect();
+    let verified: Vec<(f64, usize, Isometry3<f64>)> = top
+        .par_iter()
+        .map(|h| {
+            let t = refit(&h.t, &ps, &qs, tau2);
+            let fit = cloud_fitness(&sample, target_index, &t, tau);
+            (fit, count_inliers(&t), t)
+        })
+        .collect();
+    let (fitness, inliers, t) = verified
+        .iter()
+        .copied()
+        .enumerate()
+        .max_by(|(ia, a), (ib, b)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)).then(ib.cmp(ia)))
+        .map(|(_, v)| v)
+        .expect("non-empty");
+    let fitness = if step > 1 {
+        cloud_fitness(source, target_index, &t, tau)
+    } else {
+        fitness
+    };
+    Ok(RansacResult {
+        transform: t,
+        inlier_count: inliers,
+        correspondence_count: n,
+        iterations: done,
+        fitness,
+        verified: verified.len(),
+    })
+}
+
+/// A rigid transform as an `f32` 3x4 matrix, for fast scoring.
+struct Affine32([[f32; 4]; 3]);
+
+impl From<&Isometry3<f64>> for Affine32 {
+    fn from(t: &Isometry3<f64>) -> Self {
+        let m = t.to_homogeneous();
+        let mut a = [[0f32; 4]; 3];
+        for (r, row) in a.iter_mut().enumerate() {
+            for (c, v) in row.iter_mut().enumerate() {
+                *v = m[(r, c)] as f32;
+            }
+        }
+        Affine32(a)
+    }
+}
+
+impl Affine32 {
+    /// Squared distance between the transformed `p` and `q`.
+    #[inline(always)]
+    fn dist2(&self, p: &[f32; 3], q: &[f32; 3]) -> f32 {
+        let m = &self.0;
+        let mut d = 0f32;
+        for r in 0..3 {
+            let x = m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3] - q[r];
+            d += x * x;
+        }
+        d
+    }
+}
+
+/// Keeps the `keep` best hypotheses that differ from each other (by more than 5° or 3 inlier distances).
+fn merge_top(top: &mut Vec<Hypothesis>, batch: Vec<Hypothesis>, keep: usize, tau: f64) {
+    let mut all: Vec<Hypothesis> = std::mem::take(top);
+    all.extend(batch);
+    all.sort_by(|x, y| y.count.cmp(&x.count).then(x.iteration.cmp(&y.iteration)));
+    for h in all {
+        if top.len() >= keep {
+            break;
+        }
+        let dup = top.iter().any(|k| {
+            let (r, d) = pose_error(&k.t, &h.t);
+            r < 5.0 && d < 3.0 * tau
+        });
+        if !dup {
+            top.push(h);
+        }
+    }
+}
+
+/// Success probability of one guided sample given the inlier set of the current best hypothesis.
+fn guided_success_probability(
+    t: &Isometry3<f64>,
+    ps: &[[f32; 3]],
+    qs: &[[f32; 3]],
+    tau2: f32,
+    graph: &[Vec<u32>],
+    total_degree: u64,
+) -> f64 {
+    let inlier: Vec<bool> = ps
+        .iter()
+        .zip(qs)
+        .map(|(p, q)| {
+            let tp = transform_point(t, p);
+            (tp[0] - q[0]).powi(2) + (tp[1] - q[1]).powi(2) + (tp[2] - q[2]).powi(2) < tau2
+        })
+        .collect();
+    let mut p = 0.0;
+    for (i, nb) in graph.iter().enumerate() {
+        if !inlier[i] || nb.len() < 2 {
+            continue;
+        }
+        let deg = nb.len() as f64;
+        let good = nb.iter().filter(|&&j| inlier[j as usize]).count() as f64;
+        let p_first = (nb.len() - 1) as f64 / total_degree as f64;
+        // Both further draws inlier (the mutual-consistency check of the two is then almost sure).
+        p += p_first * (good / deg) * ((good - 1.0).max(0.0) / deg);
+    }
+    p
+}
+
+/// Refits `t` on its inlier correspondences (two rounds).
+fn refit(t: &Isometry3<f64>, ps: &[[f32; 3]], qs: &[[f32; 3]], tau2: f32) -> Isometry3<f64> {
+    let mut t = *t;
+    for _ in 0..2 {
+        let (src, dst): (Vec<Point3<f64>>, Vec<Point3<f64>>) = ps
+            .iter()
+            .zip(qs)
+            .filter(|(p, q)| {
+                let tp = transform_point(&t, p);
+                (tp[0] - q[0]).powi(2) + (tp[1] - q[1]).powi(2) + (tp[2] - q[2]).powi(2) < tau2
+            })
+            .map(|(p, q)| (to_p64(p), to_p64(q)))
+            .unzip();
+        match rigid_fit(&src, &dst, None) {
+            Some(n) => t = n,
+            None => break,
+        }
+    }
+    t
+}
+
+/// Fraction of `source` points whose nearest target point (after `t`) is within `tau`.
+pub fn cloud_fitness(
+    source: &[[f32; 3]],
+    target_index: &KdIndex,
+    t: &Isometry3<f64>,
+    tau: f64,
+) -> f64 {
+    if source.is_empty() {
+        return 0.0;
+    }
+    let tau2 = (tau * tau) as f32;
+    let hits = source
+        .par_iter()
+        .filter(|p| {
+            target_index
+                .nearest(&transform_point(t, p))
+                .is_some_and(|(_, d)| d < tau2)
+        })
+        .count();
+    hits as f64 / source.len() as f64
+}

@@ -1,0 +1,62 @@
+//! Shared helpers of the integration tests: the shared data folder, ground-truth files, error checks.
+#![allow(dead_code)]
+
+use depthcal::geometry::transform::{pose_error, random_isometry};
+use depthcal::geometry::Rng;
+use depthcal::registration::{register, RegisterConfig, Registration};
+use depthcal::PointCloud;
+use nalgebra::Isometry3;
+use std::path::PathBuf;
+
+/// `../shared/data/NAME` if present; prints a skip message and returns `None` otherwise.
+pub fn data(name: &str) -> Option<PathBuf> {
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data")
+        .join(name);
+    if p.is_dir() {
+        Some(p)
+    } else {
+        eprintln!(
+            "SKIP: {} not found (the shared data sits beside the repository)",
+            p.display()
+        );
+        None
+    }
+}
+
+/// Reads a 4x4 text matrix.
+pub fn matrix(path: &std::path::Path) -> Isometry3<f64> {
+    depthcal::io::read_matrix_file(path).unwrap()
+}
+
+/// Registers `source` moved by a seeded random transform (rotation up to `max_deg`, translation up to
+/// `max_t` per axis) onto `target`; returns the errors against `truth` (which maps the unmoved source into
+/// the target) in degrees and cloud units, and the registration.
+pub fn perturbed_errors(
+    source: &PointCloud,
+    target: &PointCloud,
+    truth: &Isometry3<f64>,
+    seed: u64,
+    max_deg: f64,
+    max_t: f64,
+    cfg: &RegisterConfig,
+) -> (f64, f64, Registration) {
+    let mut rng = Rng::new(seed);
+    let p = random_isometry(&mut rng, max_deg.to_radians(), max_t);
+    let moved = source.transformed(&p);
+    let expected = truth * p.inverse();
+    let reg = register(&moved, target, None, cfg).unwrap();
+    let (r, t) = pose_error(&reg.transform, &expected);
+    (r, t, reg)
+}
+
+#[allow(unused_imports)]
+pub use depthcal::sim::{demo_scene as synthetic_scene, split_overlapping};
+
+/// A scratch directory for one test (removed first if it exists).
+pub fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("depthcal-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}

@@ -1,0 +1,179 @@
+//! Registration on real data with ground truth (../shared/data), from seeded random starting poses.
+//! Each test skips with a message when the data folder is absent.
+
+mod common;
+use common::*;
+use depthcal::io::read_cloud;
+use depthcal::registration::RegisterConfig;
+
+fn three_dmatch_pair(i: usize, j: usize, seeds: &[u64]) {
+    let Some(d) = data("3dmatch-redkitchen") else {
+        return;
+    };
+    let text = std::fs::read_to_string(d.join("gt.log")).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    let mut truth = None;
+    for k in (0..lines.len()).step_by(5) {
+        let h: Vec<usize> = lines[k]
+            .split_whitespace()
+            .map(|v| v.parse().unwrap())
+            .collect();
+        if h[0] == i && h[1] == j {
+            let m: Vec<f64> = lines[k + 1..k + 5]
+                .iter()
+                .flat_map(|l| l.split_whitespace().map(|v| v.parse::<f64>().unwrap()))
+                .collect();
+            truth = Some(
+                depthcal::geometry::transform::isometry_from_rows(&m.try_into().unwrap(), "gt")
+                    .unwrap(),
+            );
+        }
+    }
+    let truth = truth.unwrap();
+    let src = read_cloud(d.join(format!("cloud_bin_{j}.ply"))).unwrap();
+    let tgt = read_cloud(d.join(format!("cloud_bin_{i}.ply"))).unwrap();
+    for &seed in seeds {
+        let (r, t, reg) = perturbed_errors(
+            &src,
+            &tgt,
+            &truth,
+            seed,
+            180.0,
+            1.0,
+            &RegisterConfig::default(),
+        );
+        eprintln!(
+            "3DMatch {j}->{i} seed {seed}: {r:.3} deg, {:.1} mm, fitness {:.3}, overlap {:.3}, {:?}",
+            t * 1e3,
+            reg.fitness,
+            reg.overlap,
+            reg.timings_ms
+        );
+        assert!(
+            r < 2.5 && t < 0.05,
+            "3DMatch {j}->{i} seed {seed}: {r:.3} deg, {:.1} mm",
+            t * 1e3
+        );
+    }
+}
+
+#[test]
+fn three_dmatch_1_to_0() {
+    three_dmatch_pair(0, 1, &[1, 2]);
+}
+
+#[test]
+fn three_dmatch_4_to_0() {
+    three_dmatch_pair(0, 4, &[3, 4]);
+}
+
+#[test]
+fn three_dmatch_4_to_1() {
+    three_dmatch_pair(1, 4, &[5, 6]);
+}
+
+#[test]
+fn lidar_pair() {
+    let Some(d) = data("lidar-small_gicp") else {
+        return;
+    };
+    let truth = matrix(&d.join("T_target_source.txt"));
+    let src = read_cloud(d.join("source.ply")).unwrap();
+    let tgt = read_cloud(d.join("target.ply")).unwrap();
+    for seed in [7, 8] {
+        let (r, t, reg) = perturbed_errors(
+            &src,
+            &tgt,
+            &truth,
+            seed,
+            180.0,
+            5.0,
+            &RegisterConfig::default(),
+        );
+        eprintln!(
+            "LiDAR seed {seed}: {r:.3} deg, {:.1} mm, voxel {:.3}, {:?}",
+            t * 1e3,
+            reg.voxel,
+            reg.timings_ms
+        );
+        assert!(
+            r < 0.5 && t < 0.05,
+            "LiDAR seed {seed}: {r:.3} deg, {:.1} mm",
+            t * 1e3
+        );
+    }
+}
+
+/// The stretch goal of issue 2 (about 20% overlap, 118° apart): not reached yet. At 20% overlap the
+/// wrong hypotheses fit the big planes better than the truth does (fitness 0.39-0.41 against 0.27), so
+/// the cloud-fitness verification picks them. Run with `--ignored` to see where it stands.
+#[test]
+#[ignore = "stretch goal, not yet reached (see the doc comment)"]
+fn three_dlomatch_low_overlap() {
+    let Some(d) = data("3dlomatch-redkitchen") else {
+        return;
+    };
+    let truth = matrix(&d.join("T_21_34.txt"));
+    let src = read_cloud(d.join("cloud_bin_34.ply")).unwrap();
+    let tgt = read_cloud(d.join("cloud_bin_21.ply")).unwrap();
+    for seed in [0, 11] {
+        let (r, t, reg) = perturbed_errors(
+            &src,
+            &tgt,
+            &truth,
+            seed,
+            180.0,
+            1.0,
+            &RegisterConfig::default(),
+        );
+        eprintln!(
+            "3DLoMatch seed {seed}: {r:.3} deg, {:.1} mm, overlap {:.3}",
+            t * 1e3,
+            reg.overlap
+        );
+        assert!(
+            r < 5.0 && t < 0.10,
+            "3DLoMatch seed {seed}: {r:.3} deg, {:.1} mm",
+            t * 1e3
+        );
+    }
+}
+
+#[test]
+fn geotransformer_demo_pair() {
+    let Some(d) = data("geotransformer-3dmatch-demo") else {
+        return;
+    };
+    // gt.npy is a 4x4 float64 array.
+    let bytes = std::fs::read(d.join("gt.npy")).unwrap();
+    let vals: Vec<f64> = bytes[bytes.len() - 128..]
+        .chunks(8)
+        .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
+        .collect();
+    let truth =
+        depthcal::geometry::transform::isometry_from_rows(&vals.try_into().unwrap(), "gt").unwrap();
+    let src = read_cloud(d.join("src.npy")).unwrap();
+    let tgt = read_cloud(d.join("ref.npy")).unwrap();
+    for seed in [21, 22] {
+        let (r, t, _) = perturbed_errors(
+            &src,
+            &tgt,
+            &truth,
+            seed,
+            180.0,
+            1.0,
+            &RegisterConfig::default(),
+        );
+        eprintln!(
+            "GeoTransformer demo seed {seed}: {r:.3} deg, {:.1} mm",
+            t * 1e3
+        );
+        // This pair's truth is ~1° / 8 cm from the geometric optimum: point-to-plane ICP started at the
+        // truth (ours, and Open3D's at 2 cm) settles at 1.0° / 7.8-8.5 cm. The bound sits just above it.
+        assert!(
+            r < 2.5 && t < 0.12,
+            "seed {seed}: {r:.3} deg, {:.1} mm",
+            t * 1e3
+        );
+    }
+}
