@@ -86,6 +86,12 @@ fn main() {
         )
         .unwrap();
         let (re, te) = depthcal::geometry::transform::pose_error(&r.transform, &gt);
+        if std::env::var("CANDS").is_ok() {
+            for (c, f, t) in &r.candidates {
+                let (re, te) = depthcal::geometry::transform::pose_error(t, &gt);
+                println!("   cand count {c:4} fitness {f:.3}  err {re:7.2} deg {te:.3}");
+            }
+        }
         println!("voxel {v:.4} {name}: {} corr, {good} true inliers; ransac {} inliers fitness {:.3} -> err {re:.2} deg {te:.3}; GT fitness {:.3}",
             corr.len(), r.inlier_count, r.fitness, cloud_fitness(&s.points, &ti, &gt, tau));
     }

@@ -10,6 +10,7 @@
 //! (metres, radians); point coordinates are `f32`, transforms and sums `f64`; every randomised step takes a
 //! seed and gives bit-identical output at any thread count.
 
+pub mod calibration;
 pub mod camera;
 pub mod cell;
 pub mod error;

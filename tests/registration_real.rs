@@ -6,6 +6,15 @@ use common::*;
 use depthcal::io::read_cloud;
 use depthcal::registration::RegisterConfig;
 
+/// More seeds from `DEPTHCAL_EXTRA_SEEDS=N` (seeds 1000..1000+N), for robustness sweeps.
+fn extra_seeds() -> impl Iterator<Item = u64> {
+    let n: u64 = std::env::var("DEPTHCAL_EXTRA_SEEDS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
+    1000..1000 + n
+}
+
 fn three_dmatch_pair(i: usize, j: usize, seeds: &[u64]) {
     let Some(d) = data("3dmatch-redkitchen") else {
         return;
@@ -32,7 +41,7 @@ fn three_dmatch_pair(i: usize, j: usize, seeds: &[u64]) {
     let truth = truth.unwrap();
     let src = read_cloud(d.join(format!("cloud_bin_{j}.ply"))).unwrap();
     let tgt = read_cloud(d.join(format!("cloud_bin_{i}.ply"))).unwrap();
-    for &seed in seeds {
+    for seed in seeds.iter().copied().chain(extra_seeds()) {
         let (r, t, reg) = perturbed_errors(
             &src,
             &tgt,
@@ -80,7 +89,7 @@ fn lidar_pair() {
     let truth = matrix(&d.join("T_target_source.txt"));
     let src = read_cloud(d.join("source.ply")).unwrap();
     let tgt = read_cloud(d.join("target.ply")).unwrap();
-    for seed in [7, 8] {
+    for seed in [7, 8].into_iter().chain(extra_seeds()) {
         let (r, t, reg) = perturbed_errors(
             &src,
             &tgt,
@@ -154,7 +163,7 @@ fn geotransformer_demo_pair() {
         depthcal::geometry::transform::isometry_from_rows(&vals.try_into().unwrap(), "gt").unwrap();
     let src = read_cloud(d.join("src.npy")).unwrap();
     let tgt = read_cloud(d.join("ref.npy")).unwrap();
-    for seed in [21, 22] {
+    for seed in [21, 22].into_iter().chain(extra_seeds()) {
         let (r, t, _) = perturbed_errors(
             &src,
             &tgt,

@@ -2,10 +2,13 @@
 
 use clap::{Parser, Subcommand};
 
+mod calibrate;
 mod convert;
 mod fuse;
+mod handeye;
 mod output;
 mod register;
+mod simulate;
 
 /// depthcal: depth-only calibration of multi-robot cells, and point-cloud registration.
 #[derive(Parser)]
@@ -25,10 +28,16 @@ struct Cli {
 enum Command {
     /// Register SOURCE onto TARGET (FPFH + RANSAC, then trimmed robust ICP).
     Register(register::Args),
+    /// Robot-to-robot calibration of a cell dataset: T_base1_base2 with its uncertainty.
+    Calibrate(calibrate::Args),
     /// Fuse one robot's depth frames of a cell dataset into a cloud in its base frame.
     Fuse(fuse::Args),
     /// Convert a pose file between kuka (XYZ-ABC), matrix (4x4) and xyzquat formats.
     Convert(convert::Args),
+    /// Hand-eye calibration: T_ee_cam and T_base_board from robot poses and camera-to-board poses.
+    Handeye(handeye::Args),
+    /// Write a simulated two-robot cell dataset (depth, colour, poses) with ground truth.
+    Simulate(simulate::Args),
 }
 
 /// Parses the command line, runs the command, and returns the process exit code.
@@ -57,8 +66,11 @@ pub fn run() -> i32 {
     }
     let result = match cli.command {
         Command::Register(a) => register::run(a),
+        Command::Calibrate(a) => calibrate::run(a),
         Command::Fuse(a) => fuse::run(a),
         Command::Convert(a) => convert::run(a),
+        Command::Handeye(a) => handeye::run(a),
+        Command::Simulate(a) => simulate::run(a),
     };
     match result {
         Ok(()) => 0,

@@ -106,10 +106,11 @@ fn median_point(points: &[[f32; 3]]) -> [f32; 3] {
 
 /// The voxel edge that leaves about `target` occupied voxels in `points`, never below `min_voxel`.
 ///
-/// Works on a strided sample of at most 50 000 points and refines a power-law guess (occupied voxels scale
-/// like `voxel^-d` with `d` measured on the fly) in a few passes.
+/// Works on a strided sample of at most 30 000 points and refines a power-law guess (occupied voxels scale
+/// like `voxel^-d` with `d` measured on the fly) in a few passes, then corrects it with one exact count on
+/// the whole cloud.
 pub fn voxel_for_target(points: &[[f32; 3]], target: usize, min_voxel: f64) -> Result<f64> {
-    let step = (points.len() / 50_000).max(1);
+    let step = (points.len() / 30_000).max(1);
     let sample: Vec<[f32; 3]> = points.iter().step_by(step).copied().collect();
     let target = target.max(10);
     if sample.len() <= target {
@@ -123,7 +124,7 @@ pub fn voxel_for_target(points: &[[f32; 3]], target: usize, min_voxel: f64) -> R
     let mut dim = 2.0f64;
     for _ in 0..6 {
         let ratio = n / target as f64;
-        if (ratio - 1.0).abs() < 0.05 {
+        if (ratio - 1.0).abs() < 0.1 {
             break;
         }
         let v_new = (v * ratio.powf(1.0 / dim)).max(min_voxel);
@@ -137,6 +138,12 @@ pub fn voxel_for_target(points: &[[f32; 3]], target: usize, min_voxel: f64) -> R
         }
         v = v_new;
         n = n_new;
+    }
+    // The sample sees fewer occupied voxels than the full cloud where voxels hold few points (sparse
+    // LiDAR): one exact count on the full cloud corrects the estimate.
+    if step > 1 {
+        let n_full = count_voxels(points, v)? as f64;
+        v = (v * (n_full / target as f64).powf(1.0 / dim)).max(min_voxel);
     }
     Ok(v.max(min_voxel))
 }

@@ -78,12 +78,18 @@ pub fn voxel_downsample_with_counts(
         return Ok((PointCloud::default(), Vec::new()));
     }
     let keys = voxel_keys(&cloud.points, voxel)?;
-    let mut order: Vec<u32> = (0..cloud.len() as u32).collect();
-    order.par_sort_unstable_by_key(|&i| (keys[i as usize], i));
+    // Sort (key, index) pairs: contiguous memory, ties broken by index (deterministic).
+    let mut pairs: Vec<(u64, u32)> = keys
+        .iter()
+        .enumerate()
+        .map(|(i, &k)| (k, i as u32))
+        .collect();
+    pairs.par_sort_unstable();
+    let order: Vec<u32> = pairs.iter().map(|p| p.1).collect();
     // Run boundaries.
     let mut starts = Vec::with_capacity(cloud.len() / 4 + 1);
-    for (j, w) in order.iter().enumerate() {
-        if j == 0 || keys[*w as usize] != keys[order[j - 1] as usize] {
+    for (j, w) in pairs.iter().enumerate() {
+        if j == 0 || w.0 != pairs[j - 1].0 {
             starts.push(j);
         }
     }

@@ -8,7 +8,7 @@ pub mod rigid_fit;
 
 pub use icp::{icp, IcpConfig, IcpFactor, IcpResult, Trim};
 pub use kernel::RobustKernel;
-pub use ransac::{ransac, RansacConfig, RansacResult};
+pub use ransac::{ransac, PoseConstraint, RansacConfig, RansacResult};
 pub use rigid_fit::rigid_fit;
 pub mod pipeline;
 pub mod quality;

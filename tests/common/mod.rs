@@ -29,9 +29,13 @@ pub fn matrix(path: &std::path::Path) -> Isometry3<f64> {
     depthcal::io::read_matrix_file(path).unwrap()
 }
 
-/// Registers `source` moved by a seeded random transform (rotation up to `max_deg`, translation up to
+/// Registers `source` moved by a seeded random transform `P` (rotation up to `max_deg`, translation up to
 /// `max_t` per axis) onto `target`; returns the errors against `truth` (which maps the unmoved source into
 /// the target) in degrees and cloud units, and the registration.
+///
+/// The errors are those of `T_est · P` against `truth`, i.e. measured in the original source frame as the
+/// 3DMatch benchmark does (`E = T_gt⁻¹ · T_est`). Comparing `T_est` with `truth · P⁻¹` directly would add
+/// the rotation error times the distance by which `P` moved the frame origin to the translation error.
 pub fn perturbed_errors(
     source: &PointCloud,
     target: &PointCloud,
@@ -44,9 +48,8 @@ pub fn perturbed_errors(
     let mut rng = Rng::new(seed);
     let p = random_isometry(&mut rng, max_deg.to_radians(), max_t);
     let moved = source.transformed(&p);
-    let expected = truth * p.inverse();
     let reg = register(&moved, target, None, cfg).unwrap();
-    let (r, t) = pose_error(&reg.transform, &expected);
+    let (r, t) = pose_error(&(reg.transform * p), truth);
     (r, t, reg)
 }
 

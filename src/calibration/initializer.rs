@@ -1,0 +1,99 @@
+//! Initialisers: ways to get a first `T_base1_base2` that trimmed ICP then refines.
+//!
+//! The depth-only global registration (FPFH + RANSAC under the cell's priors) is one; a user-supplied guess
+//! is another; the checkerboard, marker and 2D-feature methods plug in here too.
+
+use crate::error::Result;
+use crate::fusion::FusedCloud;
+use crate::registration::{register, PoseConstraint, RegisterConfig};
+use nalgebra::Isometry3;
+
+/// What an initialiser gets to work with: both robots' fused clouds in their own base frames.
+pub struct InitializerInput<'a> {
+    /// The reference robot's fused cloud (base1 frame, metres).
+    pub reference: &'a FusedCloud,
+    /// The other robot's fused cloud (base2 frame, metres).
+    pub other: &'a FusedCloud,
+    /// Constraint from the cell's priors (may be empty).
+    pub constraint: &'a PoseConstraint,
+    /// Seed for randomised steps.
+    pub seed: u64,
+}
+
+/// An initial estimate of `T_base1_base2` with its uncertainty.
+#[derive(Clone, Debug)]
+pub struct InitialGuess {
+    /// Maps base2 coordinates into base1.
+    pub transform: Isometry3<f64>,
+    /// 1-σ rotation uncertainty, degrees.
+    pub sigma_rotation_deg: f64,
+    /// 1-σ translation uncertainty, metres.
+    pub sigma_translation_m: f64,
+    /// A short description of how it was obtained.
+    pub detail: String,
+}
+
+/// A way to obtain an initial `T_base1_base2`.
+pub trait Initializer {
+    /// The method's name as the command line spells it (`depth`, `guess`, ...).
+    fn name(&self) -> &str;
+    /// Computes the initial estimate.
+    fn initialize(&self, input: &InitializerInput) -> Result<InitialGuess>;
+}
+
+/// Depth only: FPFH features, RANSAC under the priors, verified on the clouds (the default).
+#[derive(Clone, Debug, Default)]
+pub struct GlobalRegistration {
+    /// Registration settings (its RANSAC constraint is replaced by the priors' constraint).
+    pub config: RegisterConfig,
+}
+
+impl Initializer for GlobalRegistration {
+    fn name(&self) -> &str {
+        "depth"
+    }
+    fn initialize(&self, input: &InitializerInput) -> Result<InitialGuess> {
+        let mut cfg = self.config.clone();
+        cfg.seed = input.seed;
+        cfg.ransac.constraint = input.constraint.clone();
+        // Only the global stage: one coarse ICP level is enough for a starting point.
+        cfg.icp_levels = 1;
+        let r = register(&input.other.cloud, &input.reference.cloud, None, &cfg)?;
+        let g = r.global.as_ref().expect("global stage ran");
+        Ok(InitialGuess {
+            transform: r.transform,
+            // A coarse registration is good to about a voxel, over the half-extent of the cloud.
+            sigma_rotation_deg: (r.voxel / (0.5 * input.reference.cloud.extent()).max(r.voxel))
+                .atan()
+                .to_degrees(),
+            sigma_translation_m: r.voxel,
+            detail: format!(
+                "FPFH + RANSAC: {} correspondences, {} inliers, {} samples, fitness {:.3}, voxel {:.4} m",
+                g.correspondences, g.inliers, g.iterations, g.fitness, r.voxel
+            ),
+        })
+    }
+}
+
+/// A transform the user already knows roughly (e.g. from a tape measure or an earlier calibration).
+#[derive(Clone, Debug)]
+pub struct UserGuess {
+    /// The guess of `T_base1_base2`.
+    pub transform: Isometry3<f64>,
+    /// Where it came from (a file name).
+    pub source: String,
+}
+
+impl Initializer for UserGuess {
+    fn name(&self) -> &str {
+        "guess"
+    }
+    fn initialize(&self, _input: &InitializerInput) -> Result<InitialGuess> {
+        Ok(InitialGuess {
+            transform: self.transform,
+            sigma_rotation_deg: 5.0,
+            sigma_translation_m: 0.05,
+            detail: format!("user guess from {}", self.source),
+        })
+    }
+}

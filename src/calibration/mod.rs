@@ -1,0 +1,10 @@
+//! Calibration: robot-to-robot (initialisers, priors, the pipeline), hand-eye (AX=XB and the robot-world
+//! form AX=ZB, pure Rust), rotation and pose averaging.
+//!
+//! Frames follow the crate convention: `T_a_b` maps coordinates in frame b to frame a.
+
+pub mod average;
+pub mod handeye;
+pub mod initializer;
+pub mod priors;
+pub mod robot_to_robot;

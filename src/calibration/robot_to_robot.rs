@@ -1,0 +1,194 @@
+//! Robot-to-robot calibration of a cell: fuse each robot's frames in its base frame, get an initial
+//! `T_base1_base2` from an [`Initializer`], refine it with trimmed robust ICP, and report its quality.
+
+use crate::calibration::initializer::{InitialGuess, Initializer, InitializerInput};
+use crate::calibration::priors::CellPriors;
+use crate::cell::{Cell, CellRobot};
+use crate::error::{Error, Result};
+use crate::fusion::{fuse_robot, FuseConfig, FusedCloud};
+use crate::geometry::transform::pose_error;
+use crate::registration::quality::Degeneracy;
+use crate::registration::{register, RegisterConfig};
+use nalgebra::{Isometry3, Matrix6};
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// Settings of [`calibrate`].
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(default)]
+pub struct CalibrateConfig {
+    /// Fusion of each robot's frames (default: automatic voxel at 4 pixel footprints, no outlier removal
+    /// (the trimmed ICP and the robust kernel deal with stray points), no normals (registration estimates
+    /// its own)).
+    pub fuse: FuseConfig,
+    /// Registration settings for the refinement (and for the depth initialiser).
+    pub register: RegisterConfig,
+    /// Use the `[priors]` of `cell.toml` (default true).
+    pub use_priors: bool,
+    /// Seed of every randomised step.
+    pub seed: u64,
+}
+
+impl Default for CalibrateConfig {
+    fn default() -> Self {
+        CalibrateConfig {
+            fuse: FuseConfig {
+                auto_voxel_factor: 4.0,
+                outlier: None,
+                normals: None,
+                ..FuseConfig::default()
+            },
+            register: RegisterConfig {
+                icp_levels: 3,
+                ..RegisterConfig::default()
+            },
+            use_priors: true,
+            seed: 0,
+        }
+    }
+}
+
+/// The result of [`calibrate`].
+#[derive(Clone, Debug)]
+pub struct Calibration {
+    /// The reference robot's name (base1).
+    pub reference: String,
+    /// The other robot's name (base2).
+    pub other: String,
+    /// `T_base1_base2`: maps the other robot's base coordinates into the reference robot's base (metres).
+    pub transform: Isometry3<f64>,
+    /// Covariance of `[rx, ry, rz (rad), tx, ty, tz (m)]`, a left increment in the reference base frame.
+    pub covariance: Matrix6<f64>,
+    /// The initialiser's estimate before refinement.
+    pub initial: InitialGuess,
+    /// Initialiser name.
+    pub method: String,
+    /// Fraction of the other robot's points with a reference point within the final correspondence distance.
+    pub fitness: f64,
+    /// RMS distance of those pairs (m).
+    pub inlier_rmse: f64,
+    /// Overlap estimated by the trimmed ICP.
+    pub overlap: f64,
+    /// ICP met its tolerances.
+    pub converged: bool,
+    /// Degeneracy analysis of the final ICP.
+    pub degeneracy: Degeneracy,
+    /// Priors used, in words.
+    pub priors_used: Vec<String>,
+    /// Fused points per robot (reference, other).
+    pub fused_points: [usize; 2],
+    /// Frames per robot (reference, other).
+    pub frames: [usize; 2],
+    /// Errors against `ground_truth.json` when the cell has one: (degrees, metres).
+    pub error_vs_truth: Option<(f64, f64)>,
+    /// The same for the initial estimate.
+    pub initial_error_vs_truth: Option<(f64, f64)>,
+    /// Wall time per stage, milliseconds.
+    pub timings_ms: Vec<(String, f64)>,
+    /// Warnings for the user.
+    pub warnings: Vec<String>,
+}
+
+/// The two robots of a cell: the reference and the first other one.
+pub fn robot_pair(cell: &Cell) -> Result<(&CellRobot, &CellRobot)> {
+    let reference = cell.reference();
+    let other = cell
+        .robots
+        .iter()
+        .find(|r| r.name != reference.name)
+        .ok_or_else(|| {
+            Error::InvalidInput(format!(
+                "{}: the cell needs two robots, it names only {:?}",
+                cell.dir.join("cell.toml").display(),
+                reference.name
+            ))
+        })?;
+    Ok((reference, other))
+}
+
+/// Calibrates the cell: `T_base1_base2` between the reference robot and the other robot.
+///
+/// `progress` is called with a stage description as each stage starts.
+pub fn calibrate(
+    cell: &Cell,
+    initializer: &dyn Initializer,
+    cfg: &CalibrateConfig,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Calibration> {
+    let (reference, other) = robot_pair(cell)?;
+    let mut timings = Vec::new();
+    let mut lap = {
+        let mut t = Instant::now();
+        move |name: &str, timings: &mut Vec<(String, f64)>| {
+            let now = Instant::now();
+            timings.push((name.to_string(), (now - t).as_secs_f64() * 1e3));
+            t = now;
+        }
+    };
+    let priors = if cfg.use_priors {
+        CellPriors::from_manifest_extra(&cell.manifest.extra, &cell.dir.join("cell.toml"))?
+    } else {
+        CellPriors::default()
+    };
+    let constraint = priors.constraint();
+    progress(&format!(
+        "fusing {} frames of {}",
+        reference.frames.len(),
+        reference.name
+    ));
+    let fuse = |r: &CellRobot| -> Result<FusedCloud> { fuse_robot(r, &cfg.fuse, &|_| {}) };
+    let ref_cloud = fuse(reference)?;
+    lap("fuse_reference", &mut timings);
+    progress(&format!(
+        "fusing {} frames of {}",
+        other.frames.len(),
+        other.name
+    ));
+    let other_cloud = fuse(other)?;
+    lap("fuse_other", &mut timings);
+    progress(&format!("initialising ({})", initializer.name()));
+    let initial = initializer.initialize(&InitializerInput {
+        reference: &ref_cloud,
+        other: &other_cloud,
+        constraint: &constraint,
+        seed: cfg.seed,
+    })?;
+    lap("initialize", &mut timings);
+    progress("refining (trimmed robust ICP)");
+    let mut rcfg = cfg.register.clone();
+    rcfg.seed = cfg.seed;
+    let reg = register(
+        &other_cloud.cloud,
+        &ref_cloud.cloud,
+        Some(&initial.transform),
+        &rcfg,
+    )?;
+    lap("refine", &mut timings);
+    let mut warnings = reg.warnings.clone();
+    if !constraint.is_empty() && !constraint.accepts(&reg.transform) {
+        warnings.push(
+            "the refined transform violates the cell's priors (check [priors] in cell.toml)".into(),
+        );
+    }
+    let truth = cell.ground_truth()?.and_then(|g| g.t_base1_base2);
+    Ok(Calibration {
+        reference: reference.name.clone(),
+        other: other.name.clone(),
+        transform: reg.transform,
+        covariance: reg.covariance,
+        method: initializer.name().to_string(),
+        fitness: reg.fitness,
+        inlier_rmse: reg.inlier_rmse,
+        overlap: reg.overlap,
+        converged: reg.converged,
+        degeneracy: reg.degeneracy,
+        priors_used: priors.describe(),
+        fused_points: [ref_cloud.cloud.len(), other_cloud.cloud.len()],
+        frames: [reference.frames.len(), other.frames.len()],
+        error_vs_truth: truth.map(|t| pose_error(&reg.transform, &t)),
+        initial_error_vs_truth: truth.map(|t| pose_error(&initial.transform, &t)),
+        initial,
+        timings_ms: timings,
+        warnings,
+    })
+}

@@ -1,0 +1,351 @@
+//! `depthcal handeye`: hand-eye calibration (`T_ee_cam` and `T_base_board`) from robot poses and board
+//! poses seen by the camera.
+
+use super::output::{matrix4_json, matrix4_text};
+use anyhow::Context;
+use clap::Args as ClapArgs;
+use depthcal::calibration::handeye::{
+    calibrate_hand_eye, frames_from_records, HandEyeConfig, HandEyeMethod, HandEyeResult,
+};
+use depthcal::geometry::pose::{
+    format_from_header, isometry_to_xyzquat, read_poses, KukaPose, PoseFormat,
+};
+use nalgebra::Isometry3;
+use serde_json::json;
+use std::path::PathBuf;
+
+/// Arguments of `depthcal handeye`.
+#[derive(ClapArgs)]
+pub struct Args {
+    /// Robot flange poses T_base_ee, CSV with a header, one row per frame id.
+    #[arg(long)]
+    pub robot_poses: PathBuf,
+    /// Board poses in the camera T_cam_board (from any tool), CSV with a header, rows matched by frame id.
+    #[arg(long)]
+    pub target_poses: PathBuf,
+    /// Format of --robot-poses: kuka (frame,x_mm,y_mm,z_mm,a_deg,b_deg,c_deg), matrix (frame + 16
+    /// numbers row-major, metres) or xyzquat (frame,x,y,z,qx,qy,qz,qw, metres).
+    #[arg(long, default_value = "kuka")]
+    pub robot_format: PoseFormat,
+    /// Format of --target-poses (kuka, matrix or xyzquat).
+    #[arg(long, default_value = "matrix")]
+    pub target_format: PoseFormat,
+    /// Closed form to start from: auto (best fit, default), tsai, park, daniilidis, shah or li.
+    #[arg(long, default_value = "auto")]
+    pub method: HandEyeMethod,
+    /// Report the closed form as it is: no joint refinement, no outlier rejection.
+    #[arg(long)]
+    pub no_refine: bool,
+    /// The camera is fixed in the cell and the board is on the flange: the answer is then T_ee_board and
+    /// T_base_cam (the target poses are still T_cam_board).
+    #[arg(long)]
+    pub eye_to_hand: bool,
+    /// Seed of the least-median-of-squares search over frame triples.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// JSON file with any fields of HandEyeConfig (see src/calibration/handeye/mod.rs).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Print one JSON object on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `depthcal handeye`.
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let mut config: HandEyeConfig = match &a.config {
+        Some(p) => {
+            let text = std::fs::read_to_string(p).with_context(|| format!("{}", p.display()))?;
+            serde_json::from_str(&text)
+                .with_context(|| format!("{}: not a hand-eye config", p.display()))?
+        }
+        None => HandEyeConfig::default(),
+    };
+    config.method = a.method;
+    config.refine = !a.no_refine;
+    config.seed = a.seed;
+    let robot = read_with_hint(&a.robot_poses, a.robot_format, "--robot-format")?;
+    let target = read_with_hint(&a.target_poses, a.target_format, "--target-format")?;
+    let mut frames = frames_from_records(&robot, &a.robot_poses, &target, &a.target_poses)?;
+    if a.eye_to_hand {
+        for f in &mut frames {
+            f.t_cam_board = f.t_cam_board.inverse();
+        }
+    }
+    let r = calibrate_hand_eye(&frames, &config)?;
+    let (x_name, z_name) = if a.eye_to_hand {
+        ("T_ee_board", "T_base_cam")
+    } else {
+        ("T_ee_cam", "T_base_board")
+    };
+    for w in &r.warnings {
+        eprintln!("warning: {w}");
+    }
+    if a.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&to_json(&r, &a, x_name, z_name))?
+        );
+    } else {
+        print_text(&r, &a, x_name, z_name);
+    }
+    Ok(())
+}
+
+/// Reads a pose file in `format`; when its header names another format, the error says which flag to pass.
+fn read_with_hint(
+    path: &std::path::Path,
+    format: PoseFormat,
+    flag: &str,
+) -> anyhow::Result<Vec<depthcal::geometry::pose::PoseRecord>> {
+    match read_poses(path, Some(format)) {
+        Ok((_, r)) => Ok(r),
+        Err(e) => {
+            let header = std::fs::read_to_string(path).ok().and_then(|t| {
+                t.lines()
+                    .find(|l| !l.trim().is_empty() && !l.trim().starts_with('#'))
+                    .map(String::from)
+            });
+            match header.and_then(|h| format_from_header(&h)) {
+                Some(f) if f != format => Err(anyhow::anyhow!(
+                    "{e} (the header is the {f} format: pass {flag} {f})"
+                )),
+                _ => Err(e.into()),
+            }
+        }
+    }
+}
+
+fn kuka_json(t: &Isometry3<f64>) -> serde_json::Value {
+    let k = KukaPose::from_isometry(t);
+    json!({"x_mm": k.x_mm, "y_mm": k.y_mm, "z_mm": k.z_mm, "a_deg": k.a_deg, "b_deg": k.b_deg, "c_deg": k.c_deg})
+}
+
+fn summary(r: &HandEyeResult) -> serde_json::Value {
+    let inl: Vec<_> = r.residuals.iter().filter(|f| !f.rejected).collect();
+    let mut rot: Vec<f64> = inl.iter().map(|f| f.rotation_deg).collect();
+    let mut tr: Vec<f64> = inl.iter().map(|f| f.translation_mm).collect();
+    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
+    let med = |v: &mut Vec<f64>| {
+        v.sort_by(|a, b| a.total_cmp(b));
+        if v.is_empty() {
+            0.0
+        } else {
+            v[v.len() / 2]
+        }
+    };
+    json!({
+        "frames": inl.len(),
+        "rotation_rms_deg": rms(&rot),
+        "rotation_max_deg": rot.iter().cloned().fold(0.0, f64::max),
+        "rotation_median_deg": med(&mut rot),
+        "translation_rms_mm": rms(&tr),
+        "translation_max_mm": tr.iter().cloned().fold(0.0, f64::max),
+        "translation_median_mm": med(&mut tr),
+    })
+}
+
+fn to_json(r: &HandEyeResult, a: &Args, x_name: &str, z_name: &str) -> serde_json::Value {
+    let mut o = serde_json::Map::new();
+    o.insert(x_name.into(), matrix4_json(&r.t_ee_cam));
+    o.insert(z_name.into(), matrix4_json(&r.t_base_board));
+    o.insert(format!("{x_name}_kuka"), kuka_json(&r.t_ee_cam));
+    o.insert(
+        format!("{x_name}_xyzquat"),
+        json!(isometry_to_xyzquat(&r.t_ee_cam)),
+    );
+    o.insert(format!("{z_name}_kuka"), kuka_json(&r.t_base_board));
+    o.insert(
+        "method".into(),
+        json!(if r.refined {
+            "refined".to_string()
+        } else {
+            r.method.name().to_string()
+        }),
+    );
+    o.insert("initial_method".into(), json!(r.method.name()));
+    o.insert("initial_from_lmeds".into(), json!(r.from_lmeds));
+    o.insert(
+        "setup".into(),
+        json!(if a.eye_to_hand {
+            "eye-to-hand"
+        } else {
+            "eye-in-hand"
+        }),
+    );
+    o.insert(
+        "robot_poses".into(),
+        json!(a.robot_poses.display().to_string()),
+    );
+    o.insert(
+        "target_poses".into(),
+        json!(a.target_poses.display().to_string()),
+    );
+    o.insert(
+        "residuals".into(),
+        serde_json::to_value(&r.residuals).unwrap_or_default(),
+    );
+    o.insert("residual_summary".into(), summary(r));
+    o.insert("rejected".into(), json!(r.rejected));
+    o.insert("warnings".into(), json!(r.warnings));
+    o.insert(
+        "closed_forms".into(),
+        json!(r
+            .closed_forms
+            .iter()
+            .map(|c| json!({
+                "method": c.method.name(),
+                x_name: c.t_ee_cam.as_ref().map(matrix4_json),
+                z_name: c.t_base_board.as_ref().map(matrix4_json),
+                "rotation_median_deg": c.rotation_median_deg,
+                "translation_median_mm": c.translation_median_mm,
+                "rotation_rms_deg": c.rotation_rms_deg,
+                "translation_rms_mm": c.translation_rms_mm,
+                "error": c.error,
+            }))
+            .collect::<Vec<_>>()),
+    );
+    o.insert(
+        "excitation".into(),
+        serde_json::to_value(&r.excitation).unwrap_or_default(),
+    );
+    o.insert(
+        format!("{z_name}_spread"),
+        json!({
+            "rotation_rms_deg": r.board.rotation_rms_deg,
+            "rotation_max_deg": r.board.rotation_max_deg,
+            "translation_rms_mm": r.board.translation_rms_mm,
+            "translation_max_mm": r.board.translation_max_mm,
+        }),
+    );
+    o.insert(
+        "sigma".into(),
+        json!({"rotation_deg": r.sigma_rotation_deg, "translation_mm": r.sigma_translation_mm}),
+    );
+    o.insert("iterations".into(), json!(r.iterations));
+    o.insert("converged".into(), json!(r.converged));
+    serde_json::Value::Object(o)
+}
+
+fn pose_text(name: &str, t: &Isometry3<f64>) -> String {
+    let k = KukaPose::from_isometry(t);
+    let q = isometry_to_xyzquat(t);
+    format!(
+        "{name} (4x4, metres):\n{}\n  KUKA XYZ-ABC: X {:.3} Y {:.3} Z {:.3} mm, A {:.4} B {:.4} C {:.4} deg\n  \
+         xyz+quat: x {:.6} y {:.6} z {:.6} m, qx {:.8} qy {:.8} qz {:.8} qw {:.8}\n",
+        matrix4_text(t),
+        k.x_mm,
+        k.y_mm,
+        k.z_mm,
+        k.a_deg,
+        k.b_deg,
+        k.c_deg,
+        q[0],
+        q[1],
+        q[2],
+        q[3],
+        q[4],
+        q[5],
+        q[6]
+    )
+}
+
+fn print_text(r: &HandEyeResult, a: &Args, x_name: &str, z_name: &str) {
+    let how = if r.refined {
+        format!(
+            "joint robust refinement from {}{} ({} iterations{})",
+            r.method,
+            if r.from_lmeds {
+                " / LMedS frame triple"
+            } else {
+                ""
+            },
+            r.iterations,
+            if r.converged { "" } else { ", NOT converged" }
+        )
+    } else {
+        format!("closed form {}", r.method)
+    };
+    println!(
+        "hand-eye ({}): {} frames, {}",
+        if a.eye_to_hand {
+            "eye-to-hand"
+        } else {
+            "eye-in-hand"
+        },
+        r.residuals.len(),
+        how
+    );
+    println!();
+    print!("{}", pose_text(x_name, &r.t_ee_cam));
+    println!();
+    print!("{}", pose_text(z_name, &r.t_base_board));
+    println!(
+        "  spread of the per-frame {z_name} (inliers): rotation RMS {:.3}° max {:.3}°, translation RMS {:.2} mm max {:.2} mm",
+        r.board.rotation_rms_deg, r.board.rotation_max_deg, r.board.translation_rms_mm, r.board.translation_max_mm
+    );
+    println!();
+    println!(
+        "motions: {} pairs, rotation-axis spread {:.1}°, largest rotation {:.1}°, robot/camera angle mismatch {:.3}° (median)",
+        r.excitation.pairs, r.excitation.axis_spread_deg, r.excitation.max_rotation_deg, r.excitation.angle_mismatch_deg
+    );
+    println!();
+    println!(
+        "{:<16} {:>12} {:>14} {:>10}",
+        "frame", "rotation [°]", "translation [mm]", ""
+    );
+    for f in &r.residuals {
+        println!(
+            "{:<16} {:>12.4} {:>14.3} {:>10}",
+            f.frame,
+            f.rotation_deg,
+            f.translation_mm,
+            if f.rejected { "REJECTED" } else { "" }
+        );
+    }
+    let s = summary(r);
+    println!(
+        "inliers: {} frames, rotation RMS {:.4}° median {:.4}°, translation RMS {:.3} mm median {:.3} mm",
+        s["frames"],
+        s["rotation_rms_deg"].as_f64().unwrap_or(0.0),
+        s["rotation_median_deg"].as_f64().unwrap_or(0.0),
+        s["translation_rms_mm"].as_f64().unwrap_or(0.0),
+        s["translation_median_mm"].as_f64().unwrap_or(0.0)
+    );
+    println!();
+    println!("closed forms (residuals over all frames):");
+    println!(
+        "{:<12} {:>10} {:>10} {:>10} {:>10}   {x_name} KUKA XYZ-ABC (mm, deg)",
+        "method", "rot med°", "rot RMS°", "tr med mm", "tr RMS mm"
+    );
+    for c in &r.closed_forms {
+        match (&c.t_ee_cam, &c.error) {
+            (Some(x), _) => {
+                let k = KukaPose::from_isometry(x);
+                println!(
+                    "{:<12} {:>10.4} {:>10.4} {:>10.3} {:>10.3}   {:.2} {:.2} {:.2} {:.3} {:.3} {:.3}",
+                    c.method.name(),
+                    c.rotation_median_deg,
+                    c.rotation_rms_deg,
+                    c.translation_median_mm,
+                    c.translation_rms_mm,
+                    k.x_mm,
+                    k.y_mm,
+                    k.z_mm,
+                    k.a_deg,
+                    k.b_deg,
+                    k.c_deg
+                );
+            }
+            (None, e) => println!(
+                "{:<12} failed: {}",
+                c.method.name(),
+                e.clone().unwrap_or_default()
+            ),
+        }
+    }
+    if !r.rejected.is_empty() {
+        println!();
+        println!("rejected frames: {}", r.rejected.join(", "));
+    }
+}
