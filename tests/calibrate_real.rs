@@ -101,7 +101,10 @@ fn seven_scenes_cell_is_recovered() {
         return;
     };
     for (name, pick) in [
-        ("interleaved", (|k: usize| k % 2 == 0) as fn(usize) -> bool),
+        (
+            "interleaved",
+            (|k: usize| k.is_multiple_of(2)) as fn(usize) -> bool,
+        ),
         ("halves", |k: usize| k < 25),
     ] {
         let dir = scratch(&format!("calib-7scenes-{name}"));

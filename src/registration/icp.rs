@@ -67,7 +67,7 @@ impl Default for Trim {
 pub struct IcpConfig {
     /// Residual type (default point-to-plane).
     pub factor: IcpFactor,
-    /// Robust kernel (default Geman-McClure).
+    /// Robust kernel (default Huber).
     pub kernel: RobustKernel,
     /// Kernel scale as a multiple of the RMS of the kept residuals (default 3).
     pub kernel_scale_sigmas: f64,
@@ -89,7 +89,7 @@ impl Default for IcpConfig {
     fn default() -> Self {
         IcpConfig {
             factor: IcpFactor::PointToPlane,
-            kernel: RobustKernel::GemanMcClure,
+            kernel: RobustKernel::Huber,
             kernel_scale_sigmas: 3.0,
             min_kernel_scale: 0.0,
             max_correspondence_distance: 0.0,

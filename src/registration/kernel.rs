@@ -9,14 +9,16 @@ use serde::{Deserialize, Serialize};
 pub enum RobustKernel {
     /// Plain least squares (weight 1).
     None,
-    /// Huber: quadratic inside `c`, linear outside.
+    /// Huber: quadratic inside `c`, linear outside (the default: with trimming removing gross outliers,
+    /// a mild kernel is enough, and redescending ones bias the estimate where residuals are skewed —
+    /// measured on simulated cells: Geman-McClure 0.7-2.0 mm, Huber 0.3-1.5 mm).
+    #[default]
     Huber,
     /// Cauchy (Lorentzian): `w = 1 / (1 + (r/c)²)`.
     Cauchy,
     /// Tukey biweight: `w = (1 − (r/c)²)²` inside `c`, 0 outside.
     Tukey,
     /// Geman-McClure: `w = c⁴ / (c² + r²)²` (Open3D's `GMLoss` convention).
-    #[default]
     GemanMcClure,
 }
 
