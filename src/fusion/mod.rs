@@ -50,9 +50,11 @@ impl CropBox {
 #[serde(default, deny_unknown_fields)]
 pub struct FuseConfig {
     /// Voxel edge, metres. `None` (default): `auto_voxel_factor` × the median pixel footprint of the first
-    /// frame (median depth / focal length), e.g. ~6 mm for a 585 px camera at 1.7 m.
+    /// frame (median depth / focal length), e.g. ~9.6 mm for a 585 px camera at 1.9 m.
     pub voxel_size_m: Option<f64>,
-    /// Multiple of the median pixel footprint used when `voxel_size_m` is `None` (default 2.0).
+    /// Multiple of the median pixel footprint used when `voxel_size_m` is `None` (default 3.0: measured on
+    /// 25 Kinect frames, 2.0 gives 1.7 M points and 5.5 s with outlier removal and normals, 3.0 gives
+    /// 0.72 M points and 2.7 s, of which fusion itself is 0.34 s).
     pub auto_voxel_factor: f64,
     /// Voxels with fewer samples than this are dropped (default 1: keep all).
     pub min_points_per_voxel: u32,
@@ -71,7 +73,7 @@ impl Default for FuseConfig {
     fn default() -> Self {
         FuseConfig {
             voxel_size_m: None,
-            auto_voxel_factor: 2.0,
+            auto_voxel_factor: 3.0,
             min_points_per_voxel: 1,
             deproject: DeprojectConfig::default(),
             crop: None,
