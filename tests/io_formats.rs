@@ -67,7 +67,7 @@ fn xyz_and_npy_read() {
     // A (2, 3) float64 .npy
     let header = "{'descr': '<f8', 'fortran_order': False, 'shape': (2, 3), }";
     let mut h = header.to_string();
-    while (10 + h.len() + 1) % 64 != 0 {
+    while !(10 + h.len() + 1).is_multiple_of(64) {
         h.push(' ');
     }
     h.push('\n');
