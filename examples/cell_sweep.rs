@@ -1,5 +1,6 @@
 //! Accuracy sweep of `calibrate` over seeded simulated cells:
-//! `cargo run --release --example cell_sweep -- FIRST_SEED COUNT [FRAMES] [OVERLAP]`.
+//! `cargo run --release --example cell_sweep -- FIRST_SEED COUNT [FRAMES] [OVERLAP]` (optionally with
+//! `DEPTHCAL_SIM_JSON='{...}'`, a SimConfig to start from).
 //! Prints per-seed errors, the normalised translation error, and the median and worst.
 use depthcal::calibration::initializer::GlobalRegistration;
 use depthcal::calibration::robot_to_robot::{calibrate, CalibrateConfig};
@@ -16,10 +17,15 @@ fn main() {
     for seed in first..first + n {
         let dir = std::env::temp_dir().join(format!("depthcal-sweep-{seed}"));
         let _ = std::fs::remove_dir_all(&dir);
+        // DEPTHCAL_SIM_JSON: a JSON SimConfig to start from (e.g. a wider workspace and closer views).
+        let base: SimConfig = std::env::var("DEPTHCAL_SIM_JSON")
+            .ok()
+            .map(|j| serde_json::from_str(&j).expect("DEPTHCAL_SIM_JSON is a SimConfig"))
+            .unwrap_or_default();
         let mut cfg = SimConfig {
             seed,
             frames,
-            ..SimConfig::default()
+            ..base
         };
         cfg.color = false;
         if let Some(o) = overlap {

@@ -80,8 +80,11 @@ fn seeded_cells_at_default_noise() {
     );
 }
 
+/// The simulator's `overlap` setting narrows each robot's swing of views; with the D435's wide field of view
+/// the shared fraction stays high (the estimated overlap here is ~0.9). True 30-50% cells (wider workspace,
+/// closer views) are not solved yet: see the README.
 #[test]
-fn partial_overlap_cell() {
+fn narrow_view_swing_cell() {
     let mut cfg = sim(40);
     cfg.overlap = 0.4;
     let c = run("sim-overlap", cfg).unwrap();

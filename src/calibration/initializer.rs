@@ -42,10 +42,19 @@ pub trait Initializer {
 }
 
 /// Depth only: FPFH features, RANSAC under the priors, verified on the clouds (the default).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct GlobalRegistration {
-    /// Registration settings (its RANSAC constraint is replaced by the priors' constraint).
+    /// Registration settings (its RANSAC constraint is replaced by the priors' constraint). Default: those
+    /// of [`crate::calibration::robot_to_robot::CalibrateConfig`].
     pub config: RegisterConfig,
+}
+
+impl Default for GlobalRegistration {
+    fn default() -> Self {
+        GlobalRegistration {
+            config: crate::calibration::robot_to_robot::CalibrateConfig::default().register,
+        }
+    }
 }
 
 impl Initializer for GlobalRegistration {

@@ -5,6 +5,8 @@
 //!   consistent with it, the other two among those. Inlier matches are all mutually consistent, so this
 //!   finds an all-inlier triple orders of magnitude sooner than uniform sampling when inliers are rare
 //!   (low overlap). Without it, three distinct matches are drawn uniformly.
+//! * **Two-point hypotheses** when the caller bounds the tilt to a few degrees (level robot bases): a yaw
+//!   and a translation from two matches, so an all-inlier sample needs two inliers instead of three.
 //! * **Pre-checks** before any fit: edge-length similarity of the two triangles, then, after the
 //!   closed-form fit, each of the three pairs within the inlier distance.
 //! * **Scoring**: number of correspondences within the inlier distance.
@@ -124,6 +126,32 @@ pub struct RansacResult {
     pub candidates: Vec<(usize, f64, Isometry3<f64>)>,
 }
 
+/// Tilt bounds up to this (degrees) switch the sampler to two-point yaw-and-translation hypotheses.
+const MAX_TILT_FOR_TWO_POINT_DEG: f64 = 10.0;
+
+/// The rotation about z and the translation that map `p1`, `p2` onto `q1`, `q2` (least squares in the
+/// horizontal plane; vertical offset from the midpoints). `None` when the pair is nearly vertical or does not
+/// fit within `tau`.
+fn yaw_fit(
+    p1: &[f32; 3],
+    p2: &[f32; 3],
+    q1: &[f32; 3],
+    q2: &[f32; 3],
+    tau: f64,
+) -> Option<Isometry3<f64>> {
+    let (p1, p2, q1, q2) = (to_p64(p1), to_p64(p2), to_p64(q1), to_p64(q2));
+    let (dp, dq) = (p2 - p1, q2 - q1);
+    if dp.xy().norm() < tau || dq.xy().norm() < tau {
+        return None;
+    }
+    let yaw = dq.y.atan2(dq.x) - dp.y.atan2(dp.x);
+    let r = nalgebra::UnitQuaternion::from_axis_angle(&nalgebra::Vector3::z_axis(), yaw);
+    let pm = nalgebra::center(&p1, &p2);
+    let qm = nalgebra::center(&q1, &q2);
+    let t = Isometry3::from_parts(nalgebra::Translation3::from(qm.coords - r * pm.coords), r);
+    ((t * p1 - q1).norm() <= tau && (t * p2 - q2).norm() <= tau).then_some(t)
+}
+
 /// Samples drawn per parallel batch; the stop rule is checked between batches.
 const BATCH: usize = 2048;
 /// Above this many correspondences the consistency graph is not built (its cost grows quadratically).
@@ -222,43 +250,63 @@ pub fn ransac(
             .count()
     };
 
+    // With a small tilt bound (level robot bases) a hypothesis is a yaw and a translation: two matches
+    // determine it, and an all-inlier pair is far likelier than an all-inlier triple.
+    let two_point = cfg
+        .constraint
+        .max_tilt_deg
+        .is_some_and(|t| t <= MAX_TILT_FOR_TWO_POINT_DEG);
     let sample = |it: usize| -> Option<Hypothesis> {
         let mut rng = Rng::stream(cfg.seed, it as u64);
-        let (a, b, c) = if guided {
-            let r = rng.next_u64() % total_degree;
-            let a = cum.partition_point(|&x| x <= r);
-            let nb = &graph[a];
-            if nb.len() < 2 {
-                return None;
+        let draw = |rng: &mut Rng, k: usize| -> Option<[usize; 3]> {
+            if guided {
+                let r = rng.next_u64() % total_degree;
+                let a = cum.partition_point(|&x| x <= r);
+                let nb = &graph[a];
+                if nb.len() < 2 {
+                    return None;
+                }
+                let b = nb[rng.below(nb.len())] as usize;
+                if k == 2 {
+                    return Some([a, b, b]);
+                }
+                let c = nb[rng.below(nb.len())] as usize;
+                if b == c || graph[b].binary_search(&(c as u32)).is_err() {
+                    return None;
+                }
+                Some([a, b, c])
+            } else {
+                let (a, b) = (rng.below(n), rng.below(n));
+                let c = if k == 2 { b } else { rng.below(n) };
+                if a == b || (k == 3 && (b == c || a == c)) {
+                    return None;
+                }
+                Some([a, b, c])
             }
-            let b = nb[rng.below(nb.len())] as usize;
-            let c = nb[rng.below(nb.len())] as usize;
-            if b == c || graph[b].binary_search(&(c as u32)).is_err() {
-                return None;
-            }
-            (a, b, c)
-        } else {
-            let a = rng.below(n);
-            let b = rng.below(n);
-            let c = rng.below(n);
-            if a == b || b == c || a == c {
-                return None;
-            }
-            (a, b, c)
         };
-        if !(edge_ok(a, b) && edge_ok(b, c) && edge_ok(a, c)) {
-            return None;
-        }
-        let src = [to_p64(&ps[a]), to_p64(&ps[b]), to_p64(&ps[c])];
-        let dst = [to_p64(&qs[a]), to_p64(&qs[b]), to_p64(&qs[c])];
-        let t = rigid_fit(&src, &dst, None)?;
+        let t = if two_point {
+            let [a, b, _] = draw(&mut rng, 2)?;
+            if !edge_ok(a, b) {
+                return None;
+            }
+            yaw_fit(&ps[a], &ps[b], &qs[a], &qs[b], tau)?
+        } else {
+            let [a, b, c] = draw(&mut rng, 3)?;
+            if !(edge_ok(a, b) && edge_ok(b, c) && edge_ok(a, c)) {
+                return None;
+            }
+            let src = [to_p64(&ps[a]), to_p64(&ps[b]), to_p64(&ps[c])];
+            let dst = [to_p64(&qs[a]), to_p64(&qs[b]), to_p64(&qs[c])];
+            let t = rigid_fit(&src, &dst, None)?;
+            for k in 0..3 {
+                if (t * src[k] - dst[k]).norm() > tau {
+                    return None;
+                }
+            }
+            t
+        };
         if !cfg.constraint.accepts(&t) {
             return None;
-        }
-        for k in 0..3 {
-            if (t * src[k] - dst[k]).norm() > tau {
-                return None;
-            }
         }
         Some(Hypothesis {
             count: count_inliers(&t),
@@ -281,10 +329,14 @@ pub fn ransac(
         let Some(best) = top.first() else { continue };
         // Probability that one sample is all-inlier, for the sampler in use.
         let p = if guided {
-            guided_success_probability(&best.t, &ps, &qs, tau2, &graph, total_degree)
+            guided_success_probability(&best.t, &ps, &qs, tau2, &graph, total_degree, two_point)
         } else {
             let w = best.count as f64 / n as f64;
-            w * w * w
+            if two_point {
+                w * w
+            } else {
+                w * w * w
+            }
         };
         if p > 0.0 {
             let needed = if p >= 1.0 {
@@ -402,6 +454,7 @@ fn guided_success_probability(
     tau2: f32,
     graph: &[Vec<u32>],
     total_degree: u64,
+    two_point: bool,
 ) -> f64 {
     let inlier: Vec<bool> = ps
         .iter()
@@ -419,8 +472,12 @@ fn guided_success_probability(
         let deg = nb.len() as f64;
         let good = nb.iter().filter(|&&j| inlier[j as usize]).count() as f64;
         let p_first = (nb.len() - 1) as f64 / total_degree as f64;
-        // Both further draws inlier (the mutual-consistency check of the two is then almost sure).
-        p += p_first * (good / deg) * ((good - 1.0).max(0.0) / deg);
+        // The further draws inlier (for triples, their mutual consistency is then almost sure).
+        p += if two_point {
+            p_first * (good / deg)
+        } else {
+            p_first * (good / deg) * ((good - 1.0).max(0.0) / deg)
+        };
     }
     p
 }
