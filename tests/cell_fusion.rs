@@ -4,6 +4,9 @@
 //! The real-data tests need `../shared/data` beside the repository; they print a message and pass when it
 //! is absent.
 
+mod common;
+#[allow(unused_imports)]
+use common::{data as shared_data, scratch as tmpdir};
 use depthcal::camera::{read_depth_png, DeprojectConfig, DepthImage, Intrinsics, RayTable};
 use depthcal::cell::{Cell, CellManifest, HandEyeSpec, RobotEntry};
 use depthcal::fusion::{
@@ -15,28 +18,6 @@ use depthcal::index::KdIndex;
 use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3, Vector6};
 use std::path::{Path, PathBuf};
 use std::process::Command;
-
-fn shared_data(name: &str) -> Option<PathBuf> {
-    let d = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
-        .join(name);
-    if d.is_dir() {
-        Some(d)
-    } else {
-        eprintln!(
-            "SKIP: {} is absent; this test needs the shared real data",
-            d.display()
-        );
-        None
-    }
-}
-
-fn tmpdir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("depthcal-it-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 fn read_matrix_txt(path: &Path) -> Isometry3<f64> {
     let text = std::fs::read_to_string(path).unwrap();

@@ -4,6 +4,9 @@
 //!
 //! `cargo test --release --test handeye -- --nocapture` prints the measured tables.
 
+mod common;
+#[allow(unused_imports)]
+use common::data as shared_data;
 use depthcal::calibration::average::rotation_angle_between;
 use depthcal::calibration::handeye::{
     calibrate_hand_eye, frames_from_records, motion_pairs, solve_closed_form, HandEyeConfig,
@@ -293,21 +296,6 @@ fn outlier_frames_are_rejected_and_named() {
 
 // ---------------------------------------------------------------------------------------------------------
 // Real data: handeye_calib_camodocal's 42 robot / AR-tag pose pairs (eye-to-hand: the marker is on the tip).
-
-fn shared_data(name: &str) -> Option<PathBuf> {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
-        .join(name);
-    if p.is_dir() {
-        Some(p)
-    } else {
-        eprintln!(
-            "SKIP: {} not found (the shared data sits beside the repository)",
-            p.display()
-        );
-        None
-    }
-}
 
 /// The `!!opencv-matrix` entries of an OpenCV FileStorage YAML file, by name.
 fn opencv_yaml_matrices(path: &Path) -> std::collections::HashMap<String, Isometry3<f64>> {

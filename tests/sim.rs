@@ -2,6 +2,9 @@
 //! noise statistics, byte-identical datasets per seed (and thread count), and that a written cell opens,
 //! fuses, and lines up under the true `T_base1_base2`.
 
+mod common;
+#[allow(unused_imports)]
+use common::scratch as tmpdir;
 use depthcal::camera::{deproject, DeprojectConfig, RayTable};
 use depthcal::cell::{Cell, GroundTruth};
 use depthcal::fusion::{fuse_robot, CropBox, FuseConfig, FusedCloud};
@@ -13,13 +16,7 @@ use depthcal::sim::{
 };
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
-
-fn tmpdir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("depthcal-sim-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
-}
+use std::path::Path;
 
 fn plain() -> Appearance {
     Appearance {

@@ -48,14 +48,8 @@ pub struct Args {
 /// Runs the command.
 pub fn run(a: Args) -> Result<()> {
     let start = Instant::now();
-    let mut cfg: CalibrateConfig = match &a.config {
-        Some(p) => {
-            let text = std::fs::read_to_string(p).with_context(|| format!("{}", p.display()))?;
-            serde_json::from_str(&text)
-                .with_context(|| format!("{}: invalid configuration", p.display()))?
-        }
-        None => CalibrateConfig::default(),
-    };
+    let mut cfg: CalibrateConfig =
+        super::output::read_config(a.config.as_deref(), "calibrate configuration")?;
     cfg.seed = a.seed;
     cfg.use_priors = !a.no_priors;
     let cell = Cell::open(&a.cell)?;

@@ -2,7 +2,6 @@
 //! poses seen by the camera.
 
 use super::output::{matrix4_json, matrix4_text};
-use anyhow::Context;
 use clap::Args as ClapArgs;
 use depthcal::calibration::handeye::{
     calibrate_hand_eye, frames_from_records, HandEyeConfig, HandEyeMethod, HandEyeResult,
@@ -53,14 +52,8 @@ pub struct Args {
 
 /// Runs `depthcal handeye`.
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let mut config: HandEyeConfig = match &a.config {
-        Some(p) => {
-            let text = std::fs::read_to_string(p).with_context(|| format!("{}", p.display()))?;
-            serde_json::from_str(&text)
-                .with_context(|| format!("{}: not a hand-eye config", p.display()))?
-        }
-        None => HandEyeConfig::default(),
-    };
+    let mut config: HandEyeConfig =
+        super::output::read_config(a.config.as_deref(), "hand-eye configuration")?;
     config.method = a.method;
     config.refine = !a.no_refine;
     config.seed = a.seed;

@@ -4,6 +4,20 @@ use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::{Isometry3, Matrix6};
 use std::time::Duration;
 
+/// Reads a JSON configuration file of type `T` (missing fields take their defaults), or the defaults when
+/// no file is given; errors name the file.
+pub fn read_config<T: serde::de::DeserializeOwned + Default>(
+    path: Option<&std::path::Path>,
+    what: &str,
+) -> anyhow::Result<T> {
+    use anyhow::Context;
+    let Some(p) = path else {
+        return Ok(T::default());
+    };
+    let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("{}: not a valid {what}", p.display()))
+}
+
 /// A 4x4 row-major nested array.
 pub fn matrix4_json(t: &Isometry3<f64>) -> serde_json::Value {
     serde_json::json!(depthcal::geometry::transform::isometry_to_nested(t))

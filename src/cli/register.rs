@@ -41,14 +41,8 @@ pub struct Args {
 /// Runs the command.
 pub fn run(a: Args) -> Result<()> {
     let start = Instant::now();
-    let mut cfg: RegisterConfig = match &a.config {
-        Some(p) => {
-            let text = std::fs::read_to_string(p).with_context(|| format!("{}", p.display()))?;
-            serde_json::from_str(&text)
-                .with_context(|| format!("{}: invalid configuration", p.display()))?
-        }
-        None => RegisterConfig::default(),
-    };
+    let mut cfg: RegisterConfig =
+        super::output::read_config(a.config.as_deref(), "registration configuration")?;
     cfg.seed = a.seed;
     if a.voxel.is_some() {
         cfg.voxel = a.voxel;

@@ -50,15 +50,7 @@ pub struct Args {
 
 /// Runs `depthcal simulate`.
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let mut cfg: SimConfig = match &a.config {
-        Some(p) => {
-            let text =
-                std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-            serde_json::from_str(&text)
-                .with_context(|| format!("{}: not a valid SimConfig", p.display()))?
-        }
-        None => SimConfig::default(),
-    };
+    let mut cfg: SimConfig = super::output::read_config(a.config.as_deref(), "SimConfig")?;
     if let Some(s) = a.seed {
         cfg.seed = s;
     }
