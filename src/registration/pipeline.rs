@@ -161,7 +161,14 @@ struct Level {
     index: KdIndex,
 }
 
-fn prepare_level(cloud: &PointCloud, voxel: f64, cfg: &RegisterConfig) -> Result<Level> {
+/// Downsamples, indexes and estimates normals; orients them only when FPFH will use them (point-to-plane
+/// ICP does not care about their sign, and the orientation's neighbourhood search is not free).
+fn prepare_level(
+    cloud: &PointCloud,
+    voxel: f64,
+    cfg: &RegisterConfig,
+    for_features: bool,
+) -> Result<Level> {
     let mut down = voxel_downsample(cloud, voxel)?;
     down.normals = None;
     let index = KdIndex::new(&down.points);
@@ -173,10 +180,12 @@ fn prepare_level(cloud: &PointCloud, voxel: f64, cfg: &RegisterConfig) -> Result
             max_neighbors: cfg.normal_max_neighbors,
         },
     );
-    let orientation = cfg
-        .orientation
-        .unwrap_or(Orientation::LocalCentroid(cfg.fpfh_radius_voxels * voxel));
-    orient(&down.points, &mut normals, orientation);
+    if for_features {
+        let orientation = cfg
+            .orientation
+            .unwrap_or(Orientation::LocalCentroid(cfg.fpfh_radius_voxels * voxel));
+        orient(&down.points, &mut normals, orientation);
+    }
     down.normals = Some(normals);
     Ok(Level { cloud: down, index })
 }
@@ -264,8 +273,8 @@ pub fn register_with_progress(
     progress("downsampling, normals");
 
     // Global stage.
-    let s0 = prepare_level(&src, voxel, cfg)?;
-    let t0 = prepare_level(&tgt, voxel, cfg)?;
+    let s0 = prepare_level(&src, voxel, cfg, init.is_none())?;
+    let t0 = prepare_level(&tgt, voxel, cfg, init.is_none())?;
     timer.lap("downsample_normals");
     progress("features");
     let (initial, global) = match init {
@@ -341,7 +350,7 @@ pub fn register_with_progress(
         } else {
             (
                 Some(voxel_downsample(&src, v)?),
-                Some(prepare_level(&tgt, v, cfg)?),
+                Some(prepare_level(&tgt, v, cfg, false)?),
             )
         };
         let s_points = sl.as_ref().map_or(&s0.cloud.points, |c| &c.points);
