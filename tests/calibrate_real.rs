@@ -28,15 +28,7 @@ fn iso(t: [f64; 3], rpy_deg: [f64; 3]) -> Isometry3<f64> {
 /// Returns the true T_base1_base2.
 fn build_cell(data: &Path, dir: &Path, pick: impl Fn(usize) -> bool) -> Isometry3<f64> {
     let frames = data.join("frames");
-    let mut ids: Vec<String> = std::fs::read_dir(&frames)
-        .unwrap()
-        .filter_map(|e| {
-            let n = e.unwrap().file_name().into_string().unwrap();
-            n.strip_suffix(".depth.png")
-                .map(|s| s.trim_start_matches("frame-").to_string())
-        })
-        .collect();
-    ids.sort();
+    let ids = seven_scenes_frame_ids(&frames);
     let k: Vec<f64> = std::fs::read_to_string(data.join("camera-intrinsics.txt"))
         .unwrap()
         .split_whitespace()

@@ -6,7 +6,7 @@
 
 mod common;
 #[allow(unused_imports)]
-use common::{data as shared_data, scratch as tmpdir};
+use common::{data as shared_data, scratch as tmpdir, seven_scenes_frame_ids};
 use depthcal::camera::{read_depth_png, DeprojectConfig, DepthImage, Intrinsics, RayTable};
 use depthcal::cell::{Cell, CellManifest, HandEyeSpec, RobotEntry};
 use depthcal::fusion::{
@@ -133,15 +133,7 @@ struct SevenScenes {
 
 fn seven_scenes() -> Option<SevenScenes> {
     let dir = shared_data("7scenes-rgbd-tsdf-fusion")?;
-    let mut ids: Vec<String> = std::fs::read_dir(dir.join("frames"))
-        .unwrap()
-        .filter_map(|e| {
-            let n = e.unwrap().file_name().into_string().unwrap();
-            n.strip_suffix(".depth.png")
-                .map(|s| s.trim_start_matches("frame-").to_string())
-        })
-        .collect();
-    ids.sort();
+    let ids = seven_scenes_frame_ids(&dir.join("frames"));
     let t_world_cam = ids
         .iter()
         .map(|id| read_matrix_txt(&dir.join(format!("frames/frame-{id}.pose.txt"))))

@@ -63,3 +63,17 @@ pub fn scratch(name: &str) -> PathBuf {
     std::fs::create_dir_all(&d).unwrap();
     d
 }
+
+/// The frame ids (`000000`, `000010`, ...) of the 7-Scenes frames in `frames_dir`, sorted.
+pub fn seven_scenes_frame_ids(frames_dir: &std::path::Path) -> Vec<String> {
+    let mut ids: Vec<String> = std::fs::read_dir(frames_dir)
+        .unwrap()
+        .filter_map(|e| {
+            let n = e.unwrap().file_name().into_string().unwrap();
+            n.strip_suffix(".depth.png")
+                .map(|s| s.trim_start_matches("frame-").to_string())
+        })
+        .collect();
+    ids.sort();
+    ids
+}
