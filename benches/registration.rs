@@ -11,7 +11,9 @@ use depthcal::preprocess::normals::{estimate_normals, orient, NormalConfig, Orie
 use depthcal::preprocess::scale::{estimate_spacing, voxel_for_target};
 use depthcal::preprocess::voxel::voxel_downsample;
 use depthcal::registration::correspondence::{match_features, MatchConfig};
-use depthcal::registration::{icp, ransac, register, IcpConfig, RansacConfig, RegisterConfig};
+use depthcal::registration::{
+    icp, ransac, register, IcpCloud, IcpConfig, RansacConfig, RegisterConfig,
+};
 use depthcal::PointCloud;
 use nalgebra::Isometry3;
 use std::hint::black_box;
@@ -114,7 +116,14 @@ fn stages(c: &mut Criterion) {
             ..Default::default()
         };
         g.bench_function("icp_level0", |b| {
-            b.iter(|| black_box(icp(&sd.points, &td.points, Some(&tn), &ti, &init, &icfg).unwrap()))
+            b.iter(|| {
+                let target = IcpCloud {
+                    points: &td.points,
+                    normals: Some(&tn),
+                    covariances: None,
+                };
+                black_box(icp(&IcpCloud::points(&sd.points), &target, &ti, &init, &icfg).unwrap())
+            })
         });
         g.bench_function("register_total", |b| {
             b.iter(|| black_box(register(&src, &tgt, None, &RegisterConfig::default()).unwrap()))

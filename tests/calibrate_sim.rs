@@ -1,6 +1,7 @@
 //! `calibrate` on seeded simulated cells with exact ground truth: accuracy at default noise over several
-//! seeds, partial overlap, honesty of the reported covariance, and a featureless scene reported as
-//! degenerate. `DEPTHCAL_SIM_SEEDS=N` runs N seeds (default 4).
+//! seeds, cells whose robots share only 30-50% of the scene, honesty of the reported covariance, and a
+//! featureless scene reported as degenerate. `DEPTHCAL_SIM_SEEDS=N` runs N seeds (default 4; the README's
+//! figures come from `examples/cell_sweep.rs` over 20).
 
 mod common;
 use common::scratch;
@@ -10,15 +11,21 @@ use depthcal::cell::Cell;
 use depthcal::sim::{simulate_cell, SimConfig};
 
 fn run(name: &str, cfg: SimConfig) -> depthcal::Result<Calibration> {
+    run_shared(name, cfg).map(|(c, _)| c)
+}
+
+/// Simulates and calibrates; also returns the fractions of each robot's view the other robot saw too.
+fn run_shared(name: &str, cfg: SimConfig) -> depthcal::Result<(Calibration, [f64; 2])> {
     let dir = scratch(name);
-    simulate_cell(&cfg, &dir, &|_| {})?;
+    let (sim, _) = simulate_cell(&cfg, &dir, &|_| {})?;
     let cell = Cell::open(&dir)?;
-    calibrate(
+    let c = calibrate(
         &cell,
         &GlobalRegistration::default(),
         &CalibrateConfig::default(),
         &mut |_| {},
-    )
+    )?;
+    Ok((c, sim.shared))
 }
 
 fn sim(seed: u64) -> SimConfig {
@@ -61,9 +68,8 @@ fn seeded_cells_at_default_noise() {
             "seed {seed}: {:?}",
             c.degeneracy
         );
-        // The issue asks for < 1 mm; at default noise we reach 1-2 mm (see the README).
         assert!(
-            r < 0.1 && t < 0.003,
+            r < 0.1 && t < 0.001,
             "seed {seed}: {r:.4} deg, {:.3} mm",
             t * 1e3
         );
@@ -80,21 +86,31 @@ fn seeded_cells_at_default_noise() {
     );
 }
 
-/// The simulator's `overlap` setting narrows each robot's swing of views; with the D435's wide field of view
-/// the shared fraction stays high (the estimated overlap here is ~0.9). True 30-50% cells (wider workspace,
-/// closer views) are not solved yet: see the README.
+/// Cells whose robots share only 30-50% of what they see (checked on the rendered frames): the global
+/// stage must find the right basin and the refinement must land close to the truth. At these overlaps a
+/// few cells keep a yaw bias of up to 0.8° (ICP started at the truth settles there too; see the README),
+/// hence the looser bound.
 #[test]
-fn narrow_view_swing_cell() {
-    let mut cfg = sim(40);
-    cfg.overlap = 0.4;
-    let c = run("sim-overlap", cfg).unwrap();
-    let (r, t) = c.error_vs_truth.unwrap();
-    eprintln!(
-        "overlap 0.4: {r:.4} deg, {:.3} mm, estimated overlap {:.2}",
-        t * 1e3,
-        c.overlap
-    );
-    assert!(r < 0.1 && t < 0.003, "{r:.4} deg, {:.3} mm", t * 1e3);
+fn cells_sharing_30_to_50_percent() {
+    for (seed, overlap) in [(41u64, 0.3), (42, 0.4), (43, 0.5)] {
+        let mut cfg = sim(seed);
+        cfg.overlap = overlap;
+        let (c, shared) = run_shared(&format!("sim-overlap-{seed}"), cfg).unwrap();
+        let (r, t) = c.error_vs_truth.unwrap();
+        eprintln!(
+            "overlap {overlap}: shared {:.2} / {:.2}, {r:.4} deg, {:.3} mm, estimated overlap {:.2}",
+            shared[0],
+            shared[1],
+            t * 1e3,
+            c.overlap
+        );
+        let mean = 0.5 * (shared[0] + shared[1]);
+        assert!(
+            (mean - overlap).abs() < 0.08,
+            "asked {overlap}, the robots share {shared:?}"
+        );
+        assert!(r < 1.0 && t < 0.01, "{r:.4} deg, {:.3} mm", t * 1e3);
+    }
 }
 
 #[test]

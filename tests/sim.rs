@@ -542,3 +542,31 @@ fn cli_writes_a_cell_and_refuses_a_non_empty_directory() {
     assert!(!bad.status.success());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn overlap_setting_sets_the_shared_fraction_of_the_scene() {
+    // `overlap` is what both robots see, measured on the rendered frames; several seeds and levels.
+    let mut last = 0.0;
+    for (seed, overlap) in [(11u64, 0.3), (12, 0.5), (13, 0.7)] {
+        let mut cfg = SimConfig {
+            seed,
+            frames: 12,
+            overlap,
+            ..SimConfig::default()
+        };
+        cfg.color = false;
+        let cell = SimCell::generate(&cfg).unwrap();
+        let mean = 0.5 * (cell.shared[0] + cell.shared[1]);
+        eprintln!(
+            "overlap {overlap}: shared {:.3} / {:.3}, view spread {:.3}",
+            cell.shared[0], cell.shared[1], cell.view_spread
+        );
+        assert!(
+            (mean - overlap).abs() < 0.08,
+            "asked {overlap}, shared {:?}",
+            cell.shared
+        );
+        assert!(mean > last, "the shared fraction grows with the setting");
+        last = mean;
+    }
+}

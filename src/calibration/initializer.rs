@@ -3,9 +3,12 @@
 //! The depth-only global registration (FPFH + RANSAC under the cell's priors) is one; a user-supplied guess
 //! is another; the checkerboard, marker and 2D-feature methods plug in here too.
 
+use crate::calibration::visibility::{
+    free_space_violation, self_consistent_margin, VisibilityConfig,
+};
 use crate::error::Result;
 use crate::fusion::FusedCloud;
-use crate::registration::{register, PoseConstraint, RegisterConfig};
+use crate::registration::{register_with_prior, HypothesisPrior, PoseConstraint, RegisterConfig};
 use nalgebra::Isometry3;
 
 /// What an initialiser gets to work with: both robots' fused clouds in their own base frames.
@@ -47,12 +50,17 @@ pub struct GlobalRegistration {
     /// Registration settings (its RANSAC constraint is replaced by the priors' constraint). Default: those
     /// of [`crate::calibration::robot_to_robot::CalibrateConfig`].
     pub config: RegisterConfig,
+    /// Weigh the hypotheses by their free-space consistency with both robots' depth frames
+    /// ([`crate::calibration::visibility`]) when the fused clouds carry their frames' depth views
+    /// (default on).
+    pub visibility: Option<VisibilityConfig>,
 }
 
 impl Default for GlobalRegistration {
     fn default() -> Self {
         GlobalRegistration {
             config: crate::calibration::robot_to_robot::CalibrateConfig::default().register,
+            visibility: Some(VisibilityConfig::default()),
         }
     }
 }
@@ -67,8 +75,51 @@ impl Initializer for GlobalRegistration {
         cfg.ransac.constraint = input.constraint.clone();
         // Only the global stage: one coarse ICP level is enough for a starting point.
         cfg.icp_levels = 1;
-        let r = register(&input.other.cloud, &input.reference.cloud, None, &cfg)?;
+        let (reference, other) = (input.reference, input.other);
+        let vis = self
+            .visibility
+            .as_ref()
+            .filter(|_| !reference.views.is_empty() && !other.views.is_empty())
+            .map(|v| {
+                let (margin_m, own) = self_consistent_margin(
+                    &reference.cloud.points,
+                    &reference.views,
+                    &other.cloud.points,
+                    &other.views,
+                    v,
+                );
+                log::info!(
+                    "free-space margin {:.1} mm (each robot's own frames disagree with its cloud at {:.1}%)",
+                    margin_m * 1e3,
+                    own * 1e2
+                );
+                VisibilityConfig {
+                    margin_m,
+                    ..v.clone()
+                }
+            });
+        let prior = |t: &Isometry3<f64>| -> f64 {
+            let v = vis.as_ref().expect("only used with views");
+            let f = free_space_violation(
+                &reference.cloud.points,
+                &reference.views,
+                &other.cloud.points,
+                &other.views,
+                t,
+                v,
+            );
+            (-f / v.penalty_scale).exp()
+        };
+        let r = register_with_prior(
+            &other.cloud,
+            &reference.cloud,
+            None,
+            &cfg,
+            &mut |_| {},
+            vis.as_ref().map(|_| &prior as HypothesisPrior),
+        )?;
         let g = r.global.as_ref().expect("global stage ran");
+        log::info!("depth initialiser stages (ms): {:?}", r.timings_ms);
         Ok(InitialGuess {
             transform: r.transform,
             // A coarse registration is good to about a voxel, over the half-extent of the cloud.

@@ -8,3 +8,4 @@ pub mod handeye;
 pub mod initializer;
 pub mod priors;
 pub mod robot_to_robot;
+pub mod visibility;

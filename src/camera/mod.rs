@@ -8,9 +8,11 @@
 pub mod depth;
 pub mod distortion;
 pub mod intrinsics;
+pub mod view;
 
 pub use depth::{
     deproject, read_depth_png, write_depth_png, DeprojectConfig, DepthImage, RayTable,
 };
 pub use distortion::DistortionModel;
 pub use intrinsics::{Intrinsics, DEFAULT_DEPTH_SCALE};
+pub use view::{DepthView, Seen};

@@ -61,6 +61,7 @@ pub fn run(a: Args) -> Result<()> {
         (None, Method::Guess) => anyhow::bail!("--method guess needs --init FILE"),
         (None, Method::Depth) => Box::new(GlobalRegistration {
             config: cfg.register.clone(),
+            ..GlobalRegistration::default()
         }),
     };
     let pb = spinner("opening the cell");

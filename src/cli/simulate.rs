@@ -119,6 +119,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             "objects": cell.scene.objects.len(),
             "T_base1_base2": isometry_to_nested(&t),
             "base_distance_m": dist,
+            "shared_fraction": cell.shared,
+            "view_spread": cell.view_spread,
             "files": stats.files,
             "bytes": stats.bytes,
             "seconds": seconds,
@@ -141,6 +143,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             "true T_base1_base2: base distance {:.3} m, yaw {:.2} deg (ground_truth.json)",
             dist,
             yaw.to_degrees()
+        );
+        println!(
+            "shared scene: {:.0}% of what {} sees, {:.0}% of what {} sees (overlap asked: {:.0}%)",
+            cell.shared[0] * 100.0,
+            cell.robots[0].name,
+            cell.shared[1] * 100.0,
+            cell.robots[1].name,
+            cfg.overlap * 100.0
         );
     }
     Ok(())

@@ -13,13 +13,14 @@
 //! thread count.
 
 use crate::camera::depth::{check_size, deproject_row};
-use crate::camera::{DeprojectConfig, DepthImage, Intrinsics, RayTable};
+use crate::camera::{DeprojectConfig, DepthImage, DepthView, Intrinsics, RayTable};
 use crate::cell::CellRobot;
 use crate::error::{Error, Result};
 use crate::geometry::PointCloud;
 use crate::index::KdIndex;
 use crate::preprocess::normals::{estimate_normals, NormalConfig};
 use crate::preprocess::outlier::{statistical_inliers, OutlierConfig};
+use crate::preprocess::surface::{project_to_weighted_planes, SurfaceConfig};
 use nalgebra::{Isometry3, Matrix3, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -67,6 +68,13 @@ pub struct FuseConfig {
     /// Normal estimation (oriented toward the cameras that saw each voxel); `None` disables it. Default 30
     /// nearest neighbours.
     pub normals: Option<NormalConfig>,
+    /// Count-weighted surface projection of the voxel means, then a merge of the voxels it brought
+    /// together (see [`crate::preprocess::surface`]): removes the doubled sheets that noisy depth leaves
+    /// where a surface runs along a voxel layer. `None` disables it. Default on.
+    pub surface: Option<SurfaceConfig>,
+    /// Keep a low-resolution depth map of every frame with its pose ([`DepthView`], blocks of this many
+    /// pixels) in [`FusedCloud::views`], for visibility tests; `None` (default) keeps none.
+    pub depth_views: Option<u32>,
 }
 
 impl Default for FuseConfig {
@@ -79,6 +87,8 @@ impl Default for FuseConfig {
             crop: None,
             outlier: Some(OutlierConfig::default()),
             normals: Some(NormalConfig::default()),
+            surface: Some(SurfaceConfig::default()),
+            depth_views: None,
         }
     }
 }
@@ -150,6 +160,8 @@ pub struct FuseStats {
     pub voxels: usize,
     /// Voxels dropped for having fewer than `min_points_per_voxel` samples.
     pub sparse_removed: usize,
+    /// Points moved by the surface projection (before the merge of the voxels it brought together).
+    pub surface_moved: usize,
     /// Points removed by the statistical outlier filter.
     pub outliers_removed: usize,
     /// Points in the result.
@@ -168,6 +180,9 @@ pub struct FusedCloud {
     pub viewpoints: Vec<[f32; 3]>,
     /// Counters.
     pub stats: FuseStats,
+    /// Each frame's low-resolution depth and pose, in frame order, when [`FuseConfig::depth_views`] asks
+    /// for them (else empty).
+    pub views: Vec<DepthView>,
 }
 
 /// One frame to fuse: its depth image and `T_base_cam`.
@@ -510,6 +525,52 @@ pub fn auto_voxel_size(
     Some(factor * median_m * 2.0 / (intr.fx + intr.fy))
 }
 
+/// Merges the points of `v` that fall into one voxel of edge `voxel` (sample-count weighted means of the
+/// points and viewpoints, counts added); the result is sorted by voxel key. Deterministic.
+fn merge_voxels(v: VoxelCloud, voxel: f64) -> VoxelCloud {
+    let inv = 1.0 / voxel;
+    let key = |p: &[f32; 3]| {
+        pack_key(
+            floor_i64(p[0] as f64 * inv),
+            floor_i64(p[1] as f64 * inv),
+            floor_i64(p[2] as f64 * inv),
+        )
+        .unwrap_or(EMPTY)
+    };
+    let mut order: Vec<(u64, u32)> = v
+        .points
+        .par_iter()
+        .enumerate()
+        .map(|(i, p)| (key(p), i as u32))
+        .collect();
+    order.par_sort_unstable();
+    let mut out = VoxelCloud {
+        stats: v.stats.clone(),
+        ..Default::default()
+    };
+    let mut i = 0;
+    while i < order.len() {
+        let k = order[i].0;
+        let (mut sp, mut sv, mut sw) = ([0f64; 3], [0f64; 3], 0u64);
+        while i < order.len() && order[i].0 == k {
+            let j = order[i].1 as usize;
+            let w = v.counts[j].max(1) as u64;
+            for d in 0..3 {
+                sp[d] += v.points[j][d] as f64 * w as f64;
+                sv[d] += v.viewpoints[j][d] as f64 * w as f64;
+            }
+            sw += w;
+            i += 1;
+        }
+        let w = sw as f64;
+        out.points.push(sp.map(|x| (x / w) as f32));
+        out.viewpoints.push(sv.map(|x| (x / w) as f32));
+        out.counts.push(sw.min(u32::MAX as u64) as u32);
+    }
+    out.stats.voxels = out.points.len();
+    out
+}
+
 /// Removes sparse voxels and outliers and estimates oriented normals (the steps after voxel fusion).
 pub fn finish_fusion(v: VoxelCloud, cfg: &FuseConfig) -> Result<FusedCloud> {
     let mut stats = v.stats.clone();
@@ -528,6 +589,14 @@ pub fn finish_fusion(v: VoxelCloud, cfg: &FuseConfig) -> Result<FusedCloud> {
     } else {
         v
     };
+    if let Some(sc) = cfg.surface.as_ref().filter(|_| v.points.len() >= 3) {
+        let index = KdIndex::new(&v.points);
+        let voxel = stats.voxel_size_m;
+        let (points, moved) = project_to_weighted_planes(&v.points, &v.counts, &index, voxel, sc);
+        v.points = points;
+        v = merge_voxels(v, voxel);
+        stats.surface_moved = moved;
+    }
     if let Some(o) = &cfg.outlier {
         let index = KdIndex::new(&v.points);
         keep = statistical_inliers(&v.points, &index, o)?;
@@ -565,6 +634,7 @@ pub fn finish_fusion(v: VoxelCloud, cfg: &FuseConfig) -> Result<FusedCloud> {
         counts: v.counts,
         viewpoints: v.viewpoints,
         stats,
+        views: Vec::new(),
     })
 }
 
@@ -581,15 +651,23 @@ pub fn fuse_frames(
     let rays = RayTable::new(intr);
     let voxel = resolve_voxel(cfg, frames.iter().map(|f| f.depth), intr)?;
     let acc = VoxelFusion::new(voxel, cfg.deproject.clone(), cfg.crop)?;
-    frames.par_iter().enumerate().try_for_each(|(i, f)| {
-        acc.add_frame(
-            f.depth,
-            &rays,
-            &f.t_base_cam,
-            Path::new(&format!("frame {i}")),
-        )
-    })?;
-    let fused = finish_fusion(acc.finish(), cfg)?;
+    let views = frames
+        .par_iter()
+        .enumerate()
+        .map(|(i, f)| {
+            acc.add_frame(
+                f.depth,
+                &rays,
+                &f.t_base_cam,
+                Path::new(&format!("frame {i}")),
+            )?;
+            Ok(cfg
+                .depth_views
+                .map(|b| DepthView::new(f.depth, intr, &f.t_base_cam, b)))
+        })
+        .collect::<Result<Vec<Option<DepthView>>>>()?;
+    let mut fused = finish_fusion(acc.finish(), cfg)?;
+    fused.views = views.into_iter().flatten().collect();
     check_not_empty(&fused, "the frames")?;
     Ok(fused)
 }
@@ -666,9 +744,9 @@ pub fn fuse_robot(
     let acc = VoxelFusion::new(voxel, cfg.deproject.clone(), cfg.crop)?;
     let done = AtomicUsize::new(0);
     let first = Mutex::new(Some(first));
-    (0..robot.frames.len())
+    let views = (0..robot.frames.len())
         .into_par_iter()
-        .try_for_each(|i| -> Result<()> {
+        .map(|i| -> Result<Option<DepthView>> {
             let img = match if i == 0 {
                 first.lock().unwrap().take()
             } else {
@@ -684,9 +762,13 @@ pub fn fuse_robot(
                 &robot.frames[i].depth_path,
             )?;
             progress(done.fetch_add(1, Ordering::Relaxed) + 1);
-            Ok(())
-        })?;
-    let fused = finish_fusion(acc.finish(), cfg)?;
+            Ok(cfg
+                .depth_views
+                .map(|b| DepthView::new(&img, &robot.intrinsics, &robot.t_base_cam(i), b)))
+        })
+        .collect::<Result<Vec<Option<DepthView>>>>()?;
+    let mut fused = finish_fusion(acc.finish(), cfg)?;
+    fused.views = views.into_iter().flatten().collect();
     check_not_empty(&fused, &format!("robot {:?}", robot.name))?;
     Ok(fused)
 }

@@ -2,4 +2,5 @@
 pub mod normals;
 pub mod outlier;
 pub mod scale;
+pub mod surface;
 pub mod voxel;

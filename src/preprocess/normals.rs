@@ -80,6 +80,67 @@ pub fn estimate_normals_with_curvature(
         .unzip()
 }
 
+/// Regularised local covariance of each point for GICP, packed `[xx, xy, xz, yy, yz, zz]`, with its unit
+/// normal: the covariance of the point's neighbourhood (as for [`estimate_normals`]) with its eigenvalues
+/// replaced by `(ε, 1, 1)` (ε = 1e-3, the "plane" regularisation of GICP and small_gicp), so that every
+/// point is a small disc in its tangent plane whatever the local density. Points with fewer than 3
+/// neighbours get the identity and the normal `[0, 0, 1]`.
+pub fn estimate_covariances(
+    points: &[[f32; 3]],
+    index: &KdIndex,
+    cfg: &NormalConfig,
+) -> (Vec<[f32; 6]>, Vec<[f32; 3]>) {
+    const EPS: f64 = 1e-3;
+    points
+        .par_iter()
+        .map(|p| {
+            let nb = match cfg.radius {
+                Some(r) => index.within(p, r as f32, cfg.max_neighbors),
+                None => index.knn(p, cfg.max_neighbors),
+            };
+            let nb = if nb.len() < 3 { index.knn(p, 3) } else { nb };
+            if nb.len() < 3 {
+                return ([1.0, 0.0, 0.0, 1.0, 0.0, 1.0], [0.0, 0.0, 1.0]);
+            }
+            let mut mean = Vector3::zeros();
+            for &(i, _) in &nb {
+                mean += to_v64(&points[i]);
+            }
+            mean /= nb.len() as f64;
+            let mut c = Matrix3::zeros();
+            for &(i, _) in &nb {
+                let d = to_v64(&points[i]) - mean;
+                c += d * d.transpose();
+            }
+            let (n, _) = normal_from_covariance(&c);
+            let eig = SymmetricEigen::new(c);
+            let top = eig.eigenvalues.iter().fold(0f64, |a, &b| a.max(b));
+            if !(top > 0.0 && top.is_finite()) {
+                return ([1.0, 0.0, 0.0, 1.0, 0.0, 1.0], n);
+            }
+            // Eigenvalues relative to the largest, at least ε: a clean plane becomes (ε, ~1, 1), a noisy
+            // blob stays round instead of pretending to be a confident plane.
+            let mut r = Matrix3::zeros();
+            for k in 0..3 {
+                let v = eig.eigenvectors.column(k);
+                r += (eig.eigenvalues[k] / top).max(EPS) * v * v.transpose();
+            }
+            (
+                [
+                    r[(0, 0)],
+                    r[(0, 1)],
+                    r[(0, 2)],
+                    r[(1, 1)],
+                    r[(1, 2)],
+                    r[(2, 2)],
+                ]
+                .map(|x| x as f32),
+                n,
+            )
+        })
+        .unzip()
+}
+
 /// Normal (smallest-eigenvalue eigenvector) and surface variation of a 3x3 covariance.
 pub fn normal_from_covariance(c: &Matrix3<f64>) -> ([f32; 3], f32) {
     let eig = SymmetricEigen::new(*c);

@@ -5,9 +5,11 @@
 //! 2. **trimming**: keep the closest fraction ξ of the source points. With [`Trim::Auto`] ξ is chosen
 //!    each iteration by minimising Chetverikov's FTrICP objective `ψ(ξ) = e(ξ) / ξ^(1+λ)` (e = trimmed mean
 //!    squared distance), which estimates the overlap ratio on the fly;
-//! 3. **factor**: point-to-plane (`nᵀ(T p − q)`, needs target normals) or point-to-point (`T p − q`);
-//! 4. **robust kernel**: IRLS weights from a [`RobustKernel`] at a scale re-estimated each iteration from
-//!    the RMS of the kept residuals;
+//! 3. **factor**: point-to-plane (`nᵀ(T p − q)`, needs target normals), point-to-point (`T p − q`), or
+//!    generalized ICP (plane-to-plane: `eᵀ(C_q + R C_p Rᵀ)⁻¹e` with `e = q − T p`, needs both clouds'
+//!    [`crate::preprocess::normals::estimate_covariances`]);
+//! 4. **robust kernel**: IRLS weights from a [`RobustKernel`] on each pair's residual norm, at a scale
+//!    re-estimated each iteration from the RMS of the kept pairs' residual norms;
 //! 5. **optimiser**: one Gauss-Newton step on a left increment `[ω, v]` per iteration;
 //! 6. **termination**: the step is below both tolerances (`converged = true`) or the iteration budget is
 //!    spent (`converged = false`).
@@ -20,7 +22,7 @@ use crate::geometry::cloud::{to_v64, transform_point};
 use crate::geometry::transform::apply_left_increment;
 use crate::index::KdIndex;
 use crate::registration::kernel::RobustKernel;
-use nalgebra::{Isometry3, Matrix6, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Vector3, Vector6};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -33,6 +35,34 @@ pub enum IcpFactor {
     PointToPlane,
     /// Euclidean distance.
     PointToPoint,
+    /// Generalized ICP (Segal et al. 2009, plane-to-plane): the Mahalanobis distance under the sum of both
+    /// points' local surface covariances (needs source and target covariances). Less biased than
+    /// point-to-plane where the two clouds sample a surface differently (measured on simulated cells from
+    /// the truth: see the README).
+    Gicp,
+}
+
+/// A cloud as ICP uses it: points and whatever per-point geometry the factor needs.
+#[derive(Clone, Copy, Debug)]
+pub struct IcpCloud<'a> {
+    /// The points.
+    pub points: &'a [[f32; 3]],
+    /// Unit normals (sign free), one per point: point-to-plane needs them on the target, and when the
+    /// target has them the reported information matrix is the point-to-plane one whatever the factor.
+    pub normals: Option<&'a [[f32; 3]]>,
+    /// Regularised local covariances `[xx, xy, xz, yy, yz, zz]`, one per point (GICP needs them on both).
+    pub covariances: Option<&'a [[f32; 6]]>,
+}
+
+impl<'a> IcpCloud<'a> {
+    /// Points only.
+    pub fn points(points: &'a [[f32; 3]]) -> Self {
+        IcpCloud {
+            points,
+            normals: None,
+            covariances: None,
+        }
+    }
 }
 
 /// How much of the source is kept.
@@ -83,6 +113,10 @@ pub struct IcpConfig {
     pub rotation_tolerance: f64,
     /// Converged when the translation step is below this (cloud units). Must be set.
     pub translation_tolerance: f64,
+    /// Pairs whose normals differ by more than this are not used, degrees (sign-free; needs normals on
+    /// both clouds, ignored otherwise). `None` (default) uses every pair. Rejects pairs between different
+    /// surfaces, e.g. a face one robot saw with the edge of a face the other saw.
+    pub max_normal_angle_deg: Option<f64>,
 }
 
 impl Default for IcpConfig {
@@ -97,6 +131,7 @@ impl Default for IcpConfig {
             max_iterations: 40,
             rotation_tolerance: 1e-5,
             translation_tolerance: 0.0,
+            max_normal_angle_deg: None,
         }
     }
 }
@@ -194,11 +229,57 @@ fn row(pw: &[f32; 3], q: &[f32; 3], u: &Vector3<f64>) -> (Vector6<f64>, f64) {
     )
 }
 
-/// Runs ICP from `init`. `target_normals` is needed for point-to-plane.
+/// A 3x3 symmetric matrix from its packed upper triangle `[xx, xy, xz, yy, yz, zz]`.
+#[inline]
+fn unpack(c: &[f32; 6]) -> Matrix3<f64> {
+    let c = c.map(|x| x as f64);
+    Matrix3::new(c[0], c[1], c[2], c[1], c[3], c[4], c[2], c[4], c[5])
+}
+
+/// The rows of one pair: up to three `(Jacobian, residual)` and the pair's residual norm.
+type PairRows = ([(Vector6<f64>, f64); 3], usize, f64);
+
+/// Accumulates `JᵀWJ`, `JᵀWr` and `Σ w r²` over the pairs' rows, with the kernel weight of each pair's
+/// residual norm at scale `c`. Fixed-size chunks summed in order: the same bits at any thread count.
+fn normal_equations(
+    pairs: &[PairRows],
+    kernel: RobustKernel,
+    c: f64,
+) -> (Matrix6<f64>, Vector6<f64>, f64) {
+    pairs
+        .par_chunks(512)
+        .map(|chunk| {
+            let mut acc = (Matrix6::zeros(), Vector6::zeros(), 0.0);
+            for (rows, n, norm) in chunk {
+                let w = kernel.weight(*norm, c);
+                for (j, r) in &rows[..*n] {
+                    acc.0 += j * j.transpose() * w;
+                    acc.1 += j * (w * r);
+                    acc.2 += w * r * r;
+                }
+            }
+            acc
+        })
+        .collect::<Vec<_>>()
+        .into_iter()
+        .fold((Matrix6::zeros(), Vector6::zeros(), 0.0), |a, b| {
+            (a.0 + b.0, a.1 + b.1, a.2 + b.2)
+        })
+}
+
+/// RMS of the pairs' residual norms, and RMS of their individual rows.
+fn residual_scales(pairs: &[PairRows]) -> (f64, f64) {
+    let n = pairs.len().max(1) as f64;
+    let rows: usize = pairs.iter().map(|p| p.1).sum();
+    let ss: f64 = pairs.iter().map(|p| p.2 * p.2).sum();
+    ((ss / n).sqrt(), (ss / rows.max(1) as f64).sqrt())
+}
+
+/// Runs ICP from `init`, moving `source` onto `target` (indexed by `target_index`). Point-to-plane needs
+/// target normals; GICP needs covariances on both clouds.
 pub fn icp(
-    source: &[[f32; 3]],
-    target: &[[f32; 3]],
-    target_normals: Option<&[[f32; 3]]>,
+    source: &IcpCloud,
+    target: &IcpCloud,
     target_index: &KdIndex,
     init: &Isometry3<f64>,
     cfg: &IcpConfig,
@@ -213,18 +294,47 @@ pub fn icp(
             msg: "must be positive".into(),
         });
     }
-    if source.len() < 3 || target.len() < 3 {
+    if source.points.len() < 3 || target.points.len() < 3 {
         return Err(Error::InvalidInput(format!(
             "ICP needs at least 3 points in each cloud (source {}, target {})",
-            source.len(),
-            target.len()
+            source.points.len(),
+            target.points.len()
         )));
     }
-    let normals = match cfg.factor {
-        IcpFactor::PointToPlane => Some(target_normals.ok_or_else(|| {
-            Error::InvalidInput("point-to-plane ICP needs target normals".into())
-        })?),
+    let lengths_ok = |c: &IcpCloud| {
+        c.normals.is_none_or(|n| n.len() == c.points.len())
+            && c.covariances.is_none_or(|v| v.len() == c.points.len())
+    };
+    if !lengths_ok(source) || !lengths_ok(target) {
+        return Err(Error::InvalidInput(
+            "ICP needs one normal / covariance per point".into(),
+        ));
+    }
+    let normals = target.normals;
+    let covariances = match cfg.factor {
+        IcpFactor::PointToPlane => {
+            if normals.is_none() {
+                return Err(Error::InvalidInput(
+                    "point-to-plane ICP needs target normals".into(),
+                ));
+            }
+            None
+        }
         IcpFactor::PointToPoint => None,
+        IcpFactor::Gicp => match (source.covariances, target.covariances) {
+            (Some(s), Some(t)) => Some((s, t)),
+            _ => {
+                return Err(Error::InvalidInput(
+                    "GICP needs source and target covariances".into(),
+                ))
+            }
+        },
+    };
+    let (source_pts, target_pts) = (source.points, target.points);
+    // Normal compatibility: |cos| of the largest angle allowed, with both clouds' normals.
+    let compat = match (cfg.max_normal_angle_deg, source.normals, normals) {
+        (Some(a), Some(ns), Some(nt)) => Some((a.to_radians().cos() as f32, ns, nt)),
+        _ => None,
     };
     let maxd2 = (cfg.max_correspondence_distance * cfg.max_correspondence_distance) as f32;
     let mut t = *init;
@@ -233,12 +343,27 @@ pub fn icp(
     let mut last = None;
     for it in 0..=cfg.max_iterations {
         // 1. Correspondences.
-        let mut pairs: Vec<Pair> = source
+        let rot32: [[f32; 3]; 3] = {
+            let m = t.rotation.to_rotation_matrix();
+            std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)] as f32))
+        };
+        let mut pairs: Vec<Pair> = source_pts
             .par_iter()
             .enumerate()
             .filter_map(|(i, p)| {
                 let pw = transform_point(&t, p);
                 let (j, d2) = target_index.nearest(&pw)?;
+                if let Some((cmin, ns, nt)) = compat {
+                    let n = ns[i];
+                    let m = &rot32;
+                    let nt = nt[j];
+                    let dot: f32 = (0..3)
+                        .map(|r| (m[r][0] * n[0] + m[r][1] * n[1] + m[r][2] * n[2]) * nt[r])
+                        .sum();
+                    if dot.abs() < cmin {
+                        return None;
+                    }
+                }
                 (d2 <= maxd2).then_some(Pair {
                     i: i as u32,
                     j: j as u32,
@@ -251,69 +376,94 @@ pub fn icp(
             return Err(Error::Failed(format!(
                 "ICP lost the overlap: {} of {} source points have a target point within {:.4}",
                 pairs.len(),
-                source.len(),
+                source_pts.len(),
                 cfg.max_correspondence_distance
             )));
         }
         // 2. Trimming.
         pairs.par_sort_unstable_by(|a, b| a.d2.total_cmp(&b.d2).then(a.i.cmp(&b.i)));
         let d2s: Vec<f32> = pairs.iter().map(|p| p.d2).collect();
-        let keep = trimmed_count(&d2s, source.len(), cfg.trim);
-        let fitness = pairs.len() as f64 / source.len() as f64;
+        let keep = trimmed_count(&d2s, source_pts.len(), cfg.trim);
+        let fitness = pairs.len() as f64 / source_pts.len() as f64;
         let rmse = (d2s.iter().map(|&d| d as f64).sum::<f64>() / d2s.len() as f64).sqrt();
         let kept = &pairs[..keep];
-        // 3. Residual rows (one per pair for point-to-plane, three for point-to-point): (Jacobian, r).
-        let rows: Vec<(Vector6<f64>, f64)> = match normals {
-            Some(ns) => kept
+        // 3. Residual rows of each pair: one for point-to-plane, three for point-to-point and GICP.
+        let plane_rows = |pr: &Pair| -> PairRows {
+            let ns = normals.expect("checked");
+            let r = row(
+                &pr.pw,
+                &target_pts[pr.j as usize],
+                &to_v64(&ns[pr.j as usize]),
+            );
+            let z = (Vector6::zeros(), 0.0);
+            ([r, z, z], 1, r.1.abs())
+        };
+        let rows: Vec<PairRows> = match cfg.factor {
+            IcpFactor::PointToPlane => kept.par_iter().map(plane_rows).collect(),
+            IcpFactor::PointToPoint => kept
                 .par_iter()
-                .map(|pr| row(&pr.pw, &target[pr.j as usize], &to_v64(&ns[pr.j as usize])))
-                .collect(),
-            None => kept
-                .par_iter()
-                .flat_map_iter(|pr| {
-                    let q = &target[pr.j as usize];
-                    [Vector3::x(), Vector3::y(), Vector3::z()].map(|u| row(&pr.pw, q, &u))
+                .map(|pr| {
+                    let q = &target_pts[pr.j as usize];
+                    let r = [Vector3::x(), Vector3::y(), Vector3::z()].map(|u| row(&pr.pw, q, &u));
+                    (r, 3, (pr.d2 as f64).sqrt())
                 })
                 .collect(),
+            IcpFactor::Gicp => {
+                let (cs, ct) = covariances.expect("checked");
+                let rot = t.rotation.to_rotation_matrix();
+                let rm = rot.matrix();
+                kept.par_iter()
+                    .map(|pr| {
+                        let q = &target_pts[pr.j as usize];
+                        let c = unpack(&ct[pr.j as usize])
+                            + rm * unpack(&cs[pr.i as usize]) * rm.transpose();
+                        // Ω = C⁻¹ = L Lᵀ: the rows are the columns of L, so that Σ r² = eᵀΩe.
+                        let l = c
+                            .try_inverse()
+                            .and_then(|o| o.cholesky())
+                            .map(|ch| ch.l())
+                            .unwrap_or_else(Matrix3::identity);
+                        let r = [0, 1, 2].map(|k| row(&pr.pw, q, &l.column(k).into_owned()));
+                        let norm = r.iter().map(|x| x.1 * x.1).sum::<f64>().sqrt();
+                        (r, 3, norm)
+                    })
+                    .collect()
+            }
         };
-        // 4. Kernel scale from the RMS of the kept residuals (trimming has already removed the gross
-        // outliers; a MAD-based scale would let a large consistent subset silence a smaller one).
-        let sigma = (rows.iter().map(|r| r.1 * r.1).sum::<f64>() / rows.len() as f64)
-            .sqrt()
-            .max(1e-12);
-        let c = (cfg.kernel_scale_sigmas * sigma)
+        // 4. Kernel scale from the RMS of the kept pairs' residual norms (trimming has already removed the
+        // gross outliers; a MAD-based scale would let a large consistent subset silence a smaller one).
+        let (pair_sigma, row_sigma) = residual_scales(&rows);
+        let c = (cfg.kernel_scale_sigmas * pair_sigma.max(1e-12))
             .max(cfg.min_kernel_scale)
             .max(1e-12);
-        // Fixed-size chunks summed in order: the same bits at any thread count.
-        let partial: Vec<(Matrix6<f64>, Vector6<f64>, f64)> = rows
-            .par_chunks(512)
-            .map(|chunk| {
-                let mut acc = (Matrix6::zeros(), Vector6::zeros(), 0.0);
-                for (j, r) in chunk {
-                    let w = cfg.kernel.weight(*r, c);
-                    acc.0 += j * j.transpose() * w;
-                    acc.1 += j * (w * r);
-                    acc.2 += w * r * r;
-                }
-                acc
-            })
-            .collect();
-        let (h, g, sse) = partial
-            .into_iter()
-            .fold((Matrix6::zeros(), Vector6::zeros(), 0.0), |a, b| {
-                (a.0 + b.0, a.1 + b.1, a.2 + b.2)
-            });
+        let (h, g, sse) = normal_equations(&rows, cfg.kernel, c);
+        // What is reported (information, residual σ) is the point-to-plane system whenever the target has
+        // normals, so that covariance and degeneracy mean the same whatever the factor.
+        let (info, sigma, wsse) = if cfg.factor != IcpFactor::PointToPlane && normals.is_some() {
+            let prow: Vec<PairRows> = kept.par_iter().map(plane_rows).collect();
+            let (ps, _) = residual_scales(&prow);
+            let (ph, _, psse) = normal_equations(
+                &prow,
+                cfg.kernel,
+                (cfg.kernel_scale_sigmas * ps.max(1e-12))
+                    .max(cfg.min_kernel_scale)
+                    .max(1e-12),
+            );
+            (ph, ps.max(1e-12), psse)
+        } else {
+            (h, row_sigma.max(1e-12), sse)
+        };
         last = Some(IcpResult {
             transform: t,
             iterations,
             converged,
             fitness,
             inlier_rmse: rmse,
-            overlap: keep as f64 / source.len() as f64,
+            overlap: keep as f64 / source_pts.len() as f64,
             residual_sigma: sigma,
             pairs: keep,
-            information: h,
-            weighted_sse: sse,
+            information: info,
+            weighted_sse: wsse,
         });
         if converged || it == cfg.max_iterations {
             break;
@@ -347,7 +497,7 @@ mod tests {
     use super::*;
     use crate::geometry::transform::{pose_error, random_isometry};
     use crate::geometry::Rng;
-    use crate::preprocess::normals::{estimate_normals, NormalConfig};
+    use crate::preprocess::normals::{estimate_covariances, estimate_normals, NormalConfig};
 
     fn box_surface(rng: &mut Rng, n: usize) -> Vec<[f32; 3]> {
         // Points on three orthogonal planes and a bump: well-constrained in 6 DoF.
@@ -366,12 +516,18 @@ mod tests {
     }
 
     #[test]
-    fn converges_from_small_offsets_both_factors() {
+    fn converges_from_small_offsets_all_factors() {
         let mut rng = Rng::new(21);
         let target = box_surface(&mut rng, 6000);
         let idx = KdIndex::new(&target);
-        let normals = estimate_normals(&target, &idx, &NormalConfig::default());
-        for factor in [IcpFactor::PointToPlane, IcpFactor::PointToPoint] {
+        let ncfg = NormalConfig::default();
+        let normals = estimate_normals(&target, &idx, &ncfg);
+        let (target_cov, _) = estimate_covariances(&target, &idx, &ncfg);
+        for factor in [
+            IcpFactor::PointToPlane,
+            IcpFactor::PointToPoint,
+            IcpFactor::Gicp,
+        ] {
             for _ in 0..5 {
                 let truth = random_isometry(&mut rng, 0.08, 0.04);
                 // Source: a resampled copy of the surface, moved by truth⁻¹.
@@ -379,6 +535,9 @@ mod tests {
                     .iter()
                     .map(|p| transform_point(&truth.inverse(), p))
                     .collect();
+                let src_idx = KdIndex::new(&src);
+                let (src_cov, _) = estimate_covariances(&src, &src_idx, &ncfg);
+                let gicp = factor == IcpFactor::Gicp;
                 let cfg = IcpConfig {
                     factor,
                     max_correspondence_distance: 0.2,
@@ -387,9 +546,16 @@ mod tests {
                     ..Default::default()
                 };
                 let r = icp(
-                    &src,
-                    &target,
-                    Some(&normals),
+                    &IcpCloud {
+                        points: &src,
+                        normals: None,
+                        covariances: gicp.then_some(&src_cov[..]),
+                    },
+                    &IcpCloud {
+                        points: &target,
+                        normals: Some(&normals),
+                        covariances: gicp.then_some(&target_cov[..]),
+                    },
                     &idx,
                     &Isometry3::identity(),
                     &cfg,
@@ -399,7 +565,7 @@ mod tests {
                 let dt = r.transform.translation.vector - truth.translation.vector;
                 // Point-to-point is limited by the 2 cm sample spacing of the resampled surfaces.
                 let (rb, tb) = match factor {
-                    IcpFactor::PointToPlane => (0.1, 2e-3),
+                    IcpFactor::PointToPlane | IcpFactor::Gicp => (0.1, 2e-3),
                     IcpFactor::PointToPoint => (0.3, 5e-3),
                 };
                 assert!(

@@ -5,12 +5,16 @@ pub mod icp;
 pub mod kernel;
 pub mod ransac;
 pub mod rigid_fit;
+pub mod verify;
 
-pub use icp::{icp, IcpConfig, IcpFactor, IcpResult, Trim};
+pub use icp::{icp, IcpCloud, IcpConfig, IcpFactor, IcpResult, Trim};
 pub use kernel::RobustKernel;
 pub use ransac::{ransac, PoseConstraint, RansacConfig, RansacResult};
 pub use rigid_fit::rigid_fit;
 pub mod pipeline;
 pub mod quality;
 
-pub use pipeline::{register, register_with_progress, RegisterConfig, Registration};
+pub use pipeline::{
+    register, register_with_prior, register_with_progress, RegisterConfig, Registration,
+};
+pub use verify::HypothesisPrior;

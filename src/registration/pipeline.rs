@@ -6,14 +6,18 @@ use crate::features::{compute_fpfh, Fpfh, FpfhConfig};
 use crate::geometry::cloud::to_v64;
 use crate::geometry::PointCloud;
 use crate::index::KdIndex;
-use crate::preprocess::normals::{estimate_normals, orient, NormalConfig, Orientation};
+use crate::preprocess::normals::{
+    estimate_covariances, estimate_normals, orient, NormalConfig, Orientation,
+};
 use crate::preprocess::scale::{estimate_spacing, voxel_for_target, ScaleConfig};
 use crate::preprocess::voxel::voxel_downsample;
 use crate::registration::correspondence::{match_features, MatchConfig};
-use crate::registration::icp::{icp, IcpConfig, IcpResult};
+use crate::registration::icp::{icp, IcpCloud, IcpConfig, IcpFactor, IcpResult};
 use crate::registration::quality::{covariance, degeneracy, Degeneracy};
 use crate::registration::ransac::{ransac, RansacConfig};
+use crate::registration::verify::{verify_candidates, HypothesisPrior, VerifyConfig};
 use nalgebra::{Isometry3, Matrix6, Vector3};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
@@ -44,6 +48,9 @@ pub struct RegisterConfig {
     pub ransac: RansacConfig,
     /// RANSAC inlier distance in voxels (default 1.5).
     pub ransac_distance_voxels: f64,
+    /// Verification of RANSAC's best hypotheses by a short ICP and a normal-space-balanced alignment score
+    /// ([`crate::registration::verify`]); `None` keeps RANSAC's own choice (most feature inliers).
+    pub verify: Option<VerifyConfig>,
     /// ICP (distances and tolerances are set per level from the voxel).
     pub icp: IcpConfig,
     /// Number of ICP resolutions: voxel, voxel/2, voxel/4, ... (default 2).
@@ -55,9 +62,10 @@ pub struct RegisterConfig {
     pub icp_distance_voxels: f64,
     /// Most source points used by one ICP level (default 20 000; a deterministic stride subsample).
     pub icp_max_source_points: usize,
-    /// Relative eigenvalue below which a direction is reported as unconstrained (default 6e-3). Measured:
-    /// a noisy single plane reaches 1.7e-3 (its normals' noise props the free directions up), real scenes
-    /// and simulated cells 0.017-0.25.
+    /// Relative eigenvalue (of the coarsest ICP level's information, rotations scaled by the RMS radius)
+    /// below which a direction is reported as unconstrained (default 6e-4). Measured: a noisy bare plane's
+    /// free directions reach 2e-5 to 2.2e-4; simulated cells' weakest direction (yaw, table-dominated)
+    /// 1.9e-3 to 7e-3; 3DMatch, LiDAR 0.19-0.28.
     pub degeneracy_threshold: f64,
     /// Systematic uncertainty added to the covariance: 1-σ translation as a fraction of the finest ICP voxel
     /// (default 0.12), and that over three times the RMS radius of the matched points as rotation (radians).
@@ -79,12 +87,13 @@ impl Default for RegisterConfig {
             matching: MatchConfig::default(),
             ransac: RansacConfig::default(),
             ransac_distance_voxels: 1.5,
+            verify: Some(VerifyConfig::default()),
             icp: IcpConfig::default(),
             icp_levels: 2,
             icp_min_voxel_spacings: 1.0,
             icp_distance_voxels: 3.0,
             icp_max_source_points: 20_000,
-            degeneracy_threshold: 6e-3,
+            degeneracy_threshold: 6e-4,
             systematic_voxel_fraction: 0.12,
             seed: 0,
         }
@@ -155,31 +164,46 @@ impl Timer {
     }
 }
 
-/// A cloud prepared for one resolution: points, normals, index.
+/// A cloud prepared for one resolution: points, normals, index, and GICP covariances when asked for.
 struct Level {
     cloud: PointCloud,
     index: KdIndex,
+    covariances: Option<Vec<[f32; 6]>>,
 }
 
-/// Downsamples, indexes and estimates normals; orients them only when FPFH will use them (point-to-plane
-/// ICP does not care about their sign, and the orientation's neighbourhood search is not free).
+impl Level {
+    fn icp_cloud(&self) -> IcpCloud<'_> {
+        IcpCloud {
+            points: &self.cloud.points,
+            normals: self.cloud.normals.as_deref(),
+            covariances: self.covariances.as_deref(),
+        }
+    }
+}
+
+/// Downsamples, indexes and estimates normals (and, with `covariances`, GICP covariances); orients the
+/// normals only when FPFH will use them (point-to-plane ICP does not care about their sign, and the
+/// orientation's neighbourhood search is not free).
 fn prepare_level(
     cloud: &PointCloud,
     voxel: f64,
     cfg: &RegisterConfig,
     for_features: bool,
+    covariances: bool,
 ) -> Result<Level> {
     let mut down = voxel_downsample(cloud, voxel)?;
     down.normals = None;
     let index = KdIndex::new(&down.points);
-    let mut normals = estimate_normals(
-        &down.points,
-        &index,
-        &NormalConfig {
-            radius: Some(cfg.normal_radius_voxels * voxel),
-            max_neighbors: cfg.normal_max_neighbors,
-        },
-    );
+    let ncfg = NormalConfig {
+        radius: Some(cfg.normal_radius_voxels * voxel),
+        max_neighbors: cfg.normal_max_neighbors,
+    };
+    let (mut normals, cov) = if covariances {
+        let (c, n) = estimate_covariances(&down.points, &index, &ncfg);
+        (n, Some(c))
+    } else {
+        (estimate_normals(&down.points, &index, &ncfg), None)
+    };
     if for_features {
         let orientation = cfg
             .orientation
@@ -187,7 +211,11 @@ fn prepare_level(
         orient(&down.points, &mut normals, orientation);
     }
     down.normals = Some(normals);
-    Ok(Level { cloud: down, index })
+    Ok(Level {
+        cloud: down,
+        index,
+        covariances: cov,
+    })
 }
 
 fn check_cloud(c: &PointCloud, what: &str) -> Result<()> {
@@ -225,6 +253,20 @@ pub fn register_with_progress(
     init: Option<&Isometry3<f64>>,
     cfg: &RegisterConfig,
     progress: &mut dyn FnMut(&str),
+) -> Result<Registration> {
+    register_with_prior(source, target, init, cfg, progress, None)
+}
+
+/// As [`register_with_progress`], with a [`HypothesisPrior`] weighing the global stage's hypotheses: it
+/// multiplies RANSAC's inlier count when choosing which hypotheses to verify, and their verification
+/// score.
+pub fn register_with_prior(
+    source: &PointCloud,
+    target: &PointCloud,
+    init: Option<&Isometry3<f64>>,
+    cfg: &RegisterConfig,
+    progress: &mut dyn FnMut(&str),
+    prior: Option<HypothesisPrior>,
 ) -> Result<Registration> {
     let mut timer = Timer {
         t: Instant::now(),
@@ -273,8 +315,9 @@ pub fn register_with_progress(
     progress("downsampling, normals");
 
     // Global stage.
-    let s0 = prepare_level(&src, voxel, cfg, init.is_none())?;
-    let t0 = prepare_level(&tgt, voxel, cfg, init.is_none())?;
+    let gicp = cfg.icp.factor == IcpFactor::Gicp;
+    let s0 = prepare_level(&src, voxel, cfg, init.is_none(), gicp)?;
+    let t0 = prepare_level(&tgt, voxel, cfg, init.is_none(), gicp)?;
     timer.lap("downsample_normals");
     progress("features");
     let (initial, global) = match init {
@@ -306,8 +349,52 @@ pub fn register_with_progress(
                 seed: cfg.seed,
                 ..cfg.ransac.clone()
             };
-            let r = ransac(&s0.cloud.points, &t0.cloud.points, &t0.index, &corr, &rcfg)?;
+            let mut r = ransac(&s0.cloud.points, &t0.cloud.points, &t0.index, &corr, &rcfg)?;
             timer.lap("ransac");
+            if let Some(vcfg) = &cfg.verify {
+                progress("verifying hypotheses");
+                // Which hypotheses to verify: the most feature inliers, weighed by the caller's prior.
+                let weights: Vec<f64> = r
+                    .candidates
+                    .par_iter()
+                    .map(|c| prior.map_or(1.0, |f| f(&c.2)))
+                    .collect();
+                let mut order: Vec<usize> = (0..r.candidates.len()).collect();
+                order.sort_by(|&a, &b| {
+                    let sa = r.candidates[a].0 as f64 * weights[a];
+                    let sb = r.candidates[b].0 as f64 * weights[b];
+                    sb.total_cmp(&sa).then(a.cmp(&b))
+                });
+                order.truncate(vcfg.max_candidates.max(1));
+                let cands: Vec<Isometry3<f64>> = order.iter().map(|&k| r.candidates[k].2).collect();
+                let mut v = verify_candidates(
+                    &s0.cloud.points,
+                    s0.cloud.normals.as_ref().expect("level normals"),
+                    &t0.cloud.points,
+                    t0.cloud.normals.as_ref().expect("level normals"),
+                    &t0.index,
+                    &cands,
+                    voxel,
+                    &rcfg.constraint,
+                    prior,
+                    vcfg,
+                );
+                for c in v.iter_mut() {
+                    c.candidate = order[c.candidate];
+                }
+                if let Some(best) = v.first().filter(|b| b.score > 0.0) {
+                    log::info!(
+                        "verification: candidate {} of {} wins with score {:.3} (RANSAC's choice: {:.3})",
+                        best.candidate,
+                        v.len(),
+                        best.score,
+                        v.iter().find(|x| x.candidate == 0).map_or(0.0, |x| x.score)
+                    );
+                    r.transform = best.transform;
+                    r.inlier_count = r.candidates[best.candidate].0;
+                }
+                timer.lap("verify");
+            }
             progress("ICP");
             log::info!(
                 "global: {} correspondences, {} inliers, {} samples, fitness {:.3}",
@@ -336,27 +423,50 @@ pub fn register_with_progress(
     let mut iterations = 0;
     let mut last: Option<(IcpResult, Vec<[f32; 3]>)> = None;
     let mut finest_voxel = voxel;
+    let mut coarse_degeneracy = None;
     let levels = cfg.icp_levels.max(1);
     for level in 0..levels {
         // The last level is clamped to the finest useful voxel (the cloud's own resolution).
+        // A level within 1.5x of the finest goes straight to the finest (one level fewer, same result).
         let mut v = voxel / (1u64 << level) as f64;
-        let last_level = level + 1 == levels || (level > 0 && v <= finest);
-        if level > 0 && v < finest {
+        let near_finest = level > 0 && v < 1.5 * finest;
+        let last_level = level + 1 == levels || near_finest;
+        if near_finest {
             v = finest;
         }
         let level_start = Instant::now();
         let (sl, tl) = if level == 0 {
             (None, None)
         } else {
-            (
-                Some(voxel_downsample(&src, v)?),
-                Some(prepare_level(&tgt, v, cfg, false)?),
-            )
+            let sl = if gicp || cfg.icp.max_normal_angle_deg.is_some() {
+                prepare_level(&src, v, cfg, false, gicp)?
+            } else {
+                let cloud = voxel_downsample(&src, v)?;
+                Level {
+                    index: KdIndex::new(&[]),
+                    cloud,
+                    covariances: None,
+                }
+            };
+            (Some(sl), Some(prepare_level(&tgt, v, cfg, false, gicp)?))
         };
-        let s_points = sl.as_ref().map_or(&s0.cloud.points, |c| &c.points);
+        let slev = sl.as_ref().unwrap_or(&s0);
         let tlev = tl.as_ref().unwrap_or(&t0);
-        let step = s_points.len().div_ceil(cfg.icp_max_source_points.max(100));
-        let s_sub: Vec<[f32; 3]> = s_points.iter().step_by(step.max(1)).copied().collect();
+        let s_points = &slev.cloud.points;
+        let step = s_points
+            .len()
+            .div_ceil(cfg.icp_max_source_points.max(100))
+            .max(1);
+        let s_sub: Vec<[f32; 3]> = s_points.iter().step_by(step).copied().collect();
+        let s_cov: Option<Vec<[f32; 6]>> = slev
+            .covariances
+            .as_ref()
+            .map(|c| c.iter().step_by(step).copied().collect());
+        let s_nrm: Option<Vec<[f32; 3]>> = slev
+            .cloud
+            .normals
+            .as_ref()
+            .map(|c| c.iter().step_by(step).copied().collect());
         let icfg = IcpConfig {
             max_correspondence_distance: cfg.icp_distance_voxels * v,
             translation_tolerance: 1e-3 * v,
@@ -364,9 +474,12 @@ pub fn register_with_progress(
         };
         let prep_ms = level_start.elapsed().as_secs_f64() * 1e3;
         let r = icp(
-            &s_sub,
-            &tlev.cloud.points,
-            tlev.cloud.normals.as_deref(),
+            &IcpCloud {
+                points: &s_sub,
+                normals: s_nrm.as_deref(),
+                covariances: s_cov.as_deref(),
+            },
+            &tlev.icp_cloud(),
             &tlev.index,
             &t,
             &icfg,
@@ -382,6 +495,22 @@ pub fn register_with_progress(
             r.overlap,
             r.inlier_rmse
         );
+        if level == 0 {
+            // Degeneracy is judged at the coarsest level: its normals come from wide neighbourhoods, so
+            // their noise does not prop up free directions (a bare noisy plane: 2e-5 here against 3e-4
+            // at the finest voxel, where simulated cells' weakest direction falls to 2e-3).
+            let moved: Vec<Vector3<f64>> = s_sub
+                .iter()
+                .map(|p| (r.transform * nalgebra::Point3::from(to_v64(p))).coords)
+                .collect();
+            let (center, length) = centre_and_radius(&moved);
+            coarse_degeneracy = Some(degeneracy(
+                &r.information,
+                &center,
+                length,
+                cfg.degeneracy_threshold,
+            ));
+        }
         t = r.transform;
         converged &= r.converged;
         iterations += r.iterations;
@@ -400,14 +529,8 @@ pub fn register_with_progress(
         .map(|p| t * nalgebra::Point3::from(to_v64(p)))
         .map(|p| p.coords)
         .collect();
-    let center = moved.iter().sum::<Vector3<f64>>() / moved.len().max(1) as f64;
-    let length = (moved
-        .iter()
-        .map(|p| (p - center).norm_squared())
-        .sum::<f64>()
-        / moved.len().max(1) as f64)
-        .sqrt();
-    let deg = degeneracy(&r.information, &center, length, cfg.degeneracy_threshold);
+    let (_, length) = centre_and_radius(&moved);
+    let deg = coarse_degeneracy.expect("level 0 always runs");
     if deg.is_degenerate() {
         let msg = format!(
             "the geometry leaves some motion unconstrained: {} (the result may slide along it)",
@@ -447,4 +570,17 @@ pub fn register_with_progress(
         timings_ms: timer.out,
         warnings,
     })
+}
+
+/// Centroid of `points` and their RMS distance from it (metres).
+fn centre_and_radius(points: &[Vector3<f64>]) -> (Vector3<f64>, f64) {
+    let n = points.len().max(1) as f64;
+    let center = points.iter().sum::<Vector3<f64>>() / n;
+    let radius = (points
+        .iter()
+        .map(|p| (p - center).norm_squared())
+        .sum::<f64>()
+        / n)
+        .sqrt();
+    (center, radius)
 }

@@ -163,27 +163,74 @@ struct Hypothesis {
     t: Isometry3<f64>,
 }
 
-/// The consistency graph: `adj[i]` lists the matches whose pairwise length agrees with match `i`.
+/// Points as three coordinate arrays, for loops the compiler vectorises.
+struct Soa {
+    x: Vec<f32>,
+    y: Vec<f32>,
+    z: Vec<f32>,
+}
+
+impl Soa {
+    fn new(points: &[[f32; 3]]) -> Self {
+        Soa {
+            x: points.iter().map(|p| p[0]).collect(),
+            y: points.iter().map(|p| p[1]).collect(),
+            z: points.iter().map(|p| p[2]).collect(),
+        }
+    }
+}
+
+/// Lanes of the chunked loops below.
+const LANES: usize = 16;
+
+/// The consistency graph: `adj[i]` lists (ascending) the matches whose pairwise length agrees with
+/// match `i`. Each pair is tested once (`j > i`) and mirrored.
 fn consistency_graph(ps: &[[f32; 3]], qs: &[[f32; 3]], tol: f32, min_len: f32) -> Vec<Vec<u32>> {
     let n = ps.len();
-    (0..n)
+    let (p, q) = (Soa::new(ps), Soa::new(qs));
+    let min2 = min_len * min_len;
+    let upper: Vec<Vec<u32>> = (0..n)
         .into_par_iter()
         .map(|i| {
             let (pi, qi) = (ps[i], qs[i]);
             let mut v = Vec::new();
-            for j in 0..n {
-                if j == i {
-                    continue;
+            for start in (i + 1..n).step_by(LANES) {
+                let r = start..(start + LANES).min(n);
+                let (px, py, pz) = (&p.x[r.clone()], &p.y[r.clone()], &p.z[r.clone()]);
+                let (qx, qy, qz) = (&q.x[r.clone()], &q.y[r.clone()], &q.z[r]);
+                let mut ok = [false; LANES];
+                let lanes = ok
+                    .iter_mut()
+                    .zip(px)
+                    .zip(py)
+                    .zip(pz)
+                    .zip(qx)
+                    .zip(qy)
+                    .zip(qz);
+                for ((((((o, &x), &y), &z), &u), &w), &t) in lanes {
+                    let dp2 = (x - pi[0]).powi(2) + (y - pi[1]).powi(2) + (z - pi[2]).powi(2);
+                    let dq2 = (u - qi[0]).powi(2) + (w - qi[1]).powi(2) + (t - qi[2]).powi(2);
+                    *o = ((dp2.sqrt() - dq2.sqrt()).abs() < tol) & (dp2 > min2) & (dq2 > min2);
                 }
-                let dp = dist(&pi, &ps[j]);
-                let dq = dist(&qi, &qs[j]);
-                if (dp - dq).abs() < tol && dp > min_len && dq > min_len {
-                    v.push(j as u32);
+                for (k, &o) in ok.iter().enumerate() {
+                    if o {
+                        v.push((start + k) as u32);
+                    }
                 }
             }
             v
         })
-        .collect()
+        .collect();
+    let mut adj: Vec<Vec<u32>> = vec![Vec::new(); n];
+    for (i, row) in upper.iter().enumerate() {
+        for &j in row {
+            adj[j as usize].push(i as u32);
+        }
+    }
+    for (a, row) in adj.iter_mut().zip(upper) {
+        a.extend(row);
+    }
+    adj
 }
 
 #[inline]
@@ -242,13 +289,9 @@ pub fn ransac(
         dp.min(dq) >= sim * dp.max(dq)
     };
 
-    let count_inliers = |t: &Isometry3<f64>| -> usize {
-        let m = Affine32::from(t);
-        ps.iter()
-            .zip(&qs)
-            .filter(|(p, q)| m.dist2(p, q) < tau2)
-            .count()
-    };
+    let (ps_soa, qs_soa) = (Soa::new(&ps), Soa::new(&qs));
+    let count_inliers =
+        |t: &Isometry3<f64>| -> usize { m_count(&Affine32::from(t), &ps_soa, &qs_soa, tau2) };
 
     // With a small tilt bound (level robot bases) a hypothesis is a yaw and a translation: two matches
     // determine it, and an all-inlier pair is far likelier than an all-inlier triple.
@@ -357,16 +400,24 @@ pub fn ransac(
     // Verification on the clouds (a stride sample of at most 2000 source points is plenty to rank them).
     let step = source.len().div_ceil(2000).max(1);
     let sample: Vec<[f32; 3]> = source.iter().step_by(step).copied().collect();
+    // Cloud fitness (a tie-breaker) only for the first FITNESS_RANKED by count: a long list is kept for a
+    // later verification, not for this ranking.
+    const FITNESS_RANKED: usize = 50;
     let verified: Vec<(f64, usize, Isometry3<f64>)> = top
         .par_iter()
-        .map(|h| {
+        .enumerate()
+        .map(|(k, h)| {
             let refitted = refit(&h.t, &ps, &qs, tau2);
             let t = if cfg.constraint.accepts(&refitted) {
                 refitted
             } else {
                 h.t
             };
-            let fit = cloud_fitness(&sample, target_index, &t, tau);
+            let fit = if k < FITNESS_RANKED {
+                cloud_fitness(&sample, target_index, &t, tau)
+            } else {
+                0.0
+            };
             (fit, count_inliers(&t), t)
         })
         .collect();
@@ -413,24 +464,42 @@ impl From<&Isometry3<f64>> for Affine32 {
     }
 }
 
-impl Affine32 {
-    /// Squared distance between the transformed `p` and `q`.
-    #[inline(always)]
-    fn dist2(&self, p: &[f32; 3], q: &[f32; 3]) -> f32 {
-        let m = &self.0;
-        let mut d = 0f32;
-        for r in 0..3 {
-            let x = m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3] - q[r];
-            d += x * x;
+/// Number of pairs `(p, q)` with `‖m·p − q‖² < tau2`.
+fn m_count(m: &Affine32, p: &Soa, q: &Soa, tau2: f32) -> usize {
+    let a = &m.0;
+    let mut total = 0usize;
+    let chunks =
+        p.x.chunks(LANES)
+            .zip(p.y.chunks(LANES))
+            .zip(p.z.chunks(LANES))
+            .zip(
+                q.x.chunks(LANES)
+                    .zip(q.y.chunks(LANES))
+                    .zip(q.z.chunks(LANES)),
+            );
+    for (((px, py), pz), ((qx, qy), qz)) in chunks {
+        let mut c = 0u32;
+        for (((((&x, &y), &z), &u), &v), &w) in px.iter().zip(py).zip(pz).zip(qx).zip(qy).zip(qz) {
+            let dx = a[0][0] * x + a[0][1] * y + a[0][2] * z + a[0][3] - u;
+            let dy = a[1][0] * x + a[1][1] * y + a[1][2] * z + a[1][3] - v;
+            let dz = a[2][0] * x + a[2][1] * y + a[2][2] * z + a[2][3] - w;
+            c += u32::from(dx * dx + dy * dy + dz * dz < tau2);
         }
-        d
+        total += c as usize;
     }
+    total
 }
 
 /// Keeps the `keep` best hypotheses that differ from each other (by more than 5° or 3 inlier distances).
 fn merge_top(top: &mut Vec<Hypothesis>, batch: Vec<Hypothesis>, keep: usize, tau: f64) {
+    // A full list only takes hypotheses at least as good as its last one.
+    let floor = if top.len() >= keep {
+        top.last().map_or(0, |h| h.count)
+    } else {
+        0
+    };
     let mut all: Vec<Hypothesis> = std::mem::take(top);
-    all.extend(batch);
+    all.extend(batch.into_iter().filter(|h| h.count >= floor));
     all.sort_by(|x, y| y.count.cmp(&x.count).then(x.iteration.cmp(&y.iteration)));
     for h in all {
         if top.len() >= keep {

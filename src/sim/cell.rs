@@ -12,6 +12,7 @@
 
 use super::camera::{Resolution, SimCamera};
 use super::noise::{NoiseConfig, NoiseLevel};
+use super::overlap::{shared_fractions, SharedConfig};
 use super::render::{render_frame, write_rgb_png, RenderedFrame};
 use super::scene::{Scene, SceneConfig};
 use crate::camera::write_depth_png;
@@ -45,10 +46,13 @@ pub struct SimConfig {
     pub noise_level: NoiseLevel,
     /// An explicit noise model (overrides `noise_level`).
     pub noise: Option<NoiseConfig>,
-    /// How much of the scene both robots see, 0–1 (default 0.7). Each robot's cameras swing around the
-    /// workspace by ±(35° + 110°·overlap) of azimuth from its own side and aim at a point shifted toward its
-    /// own side by (1 − overlap)·15 cm: 0 gives two robots that see mostly opposite faces, 1 two robots that
-    /// both circle the whole table.
+    /// How much of the scene both robots see, 0–1 (default 0.7): the fraction of the surface each robot's
+    /// views see that the other robot's views also see (2 cm voxels, mean of both robots). The simulator
+    /// places the views to meet it: a view spread from 0 (each robot looks at its own side of the workspace,
+    /// close and steep, within ±25° of azimuth) to 1 (both circle the table at ±145°, from the whole distance
+    /// and elevation ranges) is chosen by bisection on a sparse ray cast. Where the scene cannot reach the
+    /// target (a small table seen from afar is always shared), the nearest reachable value is used; the
+    /// achieved fractions are in `ground_truth.json` (`shared_fraction`).
     pub overlap: f64,
     /// The table and its objects.
     pub scene: SceneConfig,
@@ -258,6 +262,11 @@ pub struct SimCell {
     pub scene: Scene,
     /// The two robots; the first is the reference.
     pub robots: Vec<SimRobot>,
+    /// The view spread chosen for `config.overlap`, 0–1 (see [`SimConfig::overlap`]).
+    pub view_spread: f64,
+    /// Fraction of the surface each robot's views see that the other robot's views also see (2 cm voxels,
+    /// noise-free sparse ray cast; reference robot first).
+    pub shared: [f64; 2],
 }
 
 /// Sizes of a written dataset.
@@ -306,6 +315,97 @@ fn look_at(pos: Vector3<f64>, target: Vector3<f64>, roll: f64) -> Isometry3<f64>
     Isometry3::from_parts(Translation3::from(pos), q)
 }
 
+/// The random part of one view (uniforms and normals), drawn once; [`ViewDraw::view`] maps it to a camera
+/// pose for a given view spread.
+#[derive(Clone, Copy, Debug)]
+struct ViewDraw {
+    azimuth: f64,
+    elevation: f64,
+    distance: f64,
+    aim: [f64; 2],
+    aim_z: f64,
+    roll: f64,
+}
+
+impl ViewDraw {
+    fn draw(r: &mut Rng) -> Self {
+        ViewDraw {
+            azimuth: r.next_f64(),
+            elevation: r.next_f64(),
+            distance: r.next_f64(),
+            aim: [r.normal(), r.normal()],
+            aim_z: r.next_f64(),
+            roll: r.uniform(-1.0, 1.0),
+        }
+    }
+
+    /// `T_world_cam` of view `k` of a robot standing on side `phi` (radians, azimuth of its base around the
+    /// table), for view spread `s` in 0–1. At `s = 1` the views use the configured ranges in full and swing
+    /// ±145° around the workspace centre; as `s` falls they close in on the robot's own side: azimuths within
+    /// ±(25° + 120°·s), aim points shifted toward the robot by (1 − s)·0.9 of the table's inscribed radius,
+    /// elevations moved toward 80–89° (looking down) and distances toward the near end of the range.
+    fn view(&self, cfg: &SimConfig, phi: f64, s: f64, k: usize) -> Isometry3<f64> {
+        let lerp = |a: f64, b: f64| a + (b - a) * s;
+        let swing = (25.0 + 120.0 * s).to_radians();
+        let ws = cfg.scene.workspace_radius_m;
+        let inscribed = 0.5 * cfg.scene.table_size_m[0].min(cfg.scene.table_size_m[1]);
+        let shift = (1.0 - s) * 0.9 * inscribed;
+        let [e0, e1] = cfg.view_elevation_deg;
+        let (e0, e1) = (lerp(e0.max(80.0), e0), lerp(89.0, e1));
+        let [d0, d1] = cfg.view_distance_m;
+        let d1 = d0 + (d1 - d0) * (0.2 + 0.8 * s);
+        let side = Vector3::new(phi.cos(), phi.sin(), 0.0);
+        let aim_r = (ws * 1.1).max(shift).max(0.03);
+        let n = cfg.frames as f64;
+        let a = phi + swing * (2.0 * (k as f64 + self.azimuth) / n - 1.0);
+        let e = (e0 + (e1 - e0) * self.elevation).to_radians();
+        let d = d0 + (d1 - d0) * self.distance;
+        let mut aim = side * shift + Vector3::new(0.05 * self.aim[0], 0.05 * self.aim[1], 0.0);
+        let r = aim.xy().norm();
+        if r > aim_r {
+            aim *= aim_r / r;
+        }
+        aim.z = 0.06 * self.aim_z;
+        let pos = aim + d * Vector3::new(e.cos() * a.cos(), e.cos() * a.sin(), e.sin());
+        look_at(pos, aim, self.roll * cfg.view_roll_deg.to_radians())
+    }
+}
+
+/// The view spread in 0–1 whose shared fraction (mean of both robots') is closest to `target`, by bisection
+/// on `shared_at` (which grows with the spread, up to noise); returns it with its shared fractions.
+fn solve_spread(target: f64, shared_at: impl Fn(f64) -> [f64; 2]) -> (f64, [f64; 2]) {
+    let mean = |f: [f64; 2]| 0.5 * (f[0] + f[1]);
+    let mut best = (1.0, shared_at(1.0));
+    let consider = |s: f64, f: [f64; 2], best: &mut (f64, [f64; 2])| {
+        if (mean(f) - target).abs() < (mean(best.1) - target).abs() {
+            *best = (s, f);
+        }
+    };
+    if mean(best.1) <= target {
+        return best;
+    }
+    let f0 = shared_at(0.0);
+    consider(0.0, f0, &mut best);
+    if mean(f0) >= target {
+        return best;
+    }
+    let (mut lo, mut hi) = (0.0, 1.0);
+    for _ in 0..8 {
+        let mid = 0.5 * (lo + hi);
+        let f = shared_at(mid);
+        consider(mid, f, &mut best);
+        if (mean(f) - target).abs() < 0.01 {
+            break;
+        }
+        if mean(f) < target {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    best
+}
+
 impl SimCell {
     /// Makes the cell: the scene, the base layout, each robot's hand-eye and flange poses (no rendering).
     /// Same config (seed included), same cell.
@@ -323,6 +423,7 @@ impl SimCell {
         let yaw_range = cfg.base_yaw_range_deg.to_radians();
         let width = ((cfg.frames.max(1) - 1).to_string().len()).max(3);
         let mut robots = Vec::with_capacity(2);
+        let mut layouts = Vec::with_capacity(2);
         for (i, &phi) in phis.iter().enumerate() {
             let r =
                 cfg.base_distance_m / 2.0 + layout.uniform(-0.5, 0.5) * cfg.base_distance_jitter_m;
@@ -353,53 +454,58 @@ impl SimCell {
             );
             let t_ee_cam = as_read_back_hand_eye(&t_ee_cam)?;
 
-            // Views: azimuth stratified over the robot's swing, random elevation, distance, aim and roll.
+            // The random part of each view; where the views go also depends on the spread chosen below.
             let mut pr = Rng::stream(seed, 20 + i as u64);
-            let f = cfg.overlap;
-            let swing = (35.0 + 110.0 * f).to_radians();
-            let shift = (1.0 - f) * 1.1 * cfg.scene.workspace_radius_m;
-            let [e0, e1] = cfg.view_elevation_deg;
-            let e0 = e0 + (1.0 - f) * 0.7 * (e1 - e0);
-            let [d0, d1] = cfg.view_distance_m;
-            let d1 = d0 + (d1 - d0) * (0.3 + 0.7 * f);
-            let side = Vector3::new(phi.cos(), phi.sin(), 0.0);
-            let aim_r = (cfg.scene.workspace_radius_m * 1.1).max(0.03);
-            let t_base_world = t_world_base.inverse();
-            let mut poses = Vec::with_capacity(cfg.frames);
-            for k in 0..cfg.frames {
-                let a = phi + swing * (2.0 * (k as f64 + pr.next_f64()) / cfg.frames as f64 - 1.0);
-                let e = pr.uniform(e0, e1).to_radians();
-                let d = pr.uniform(d0, d1);
-                let mut aim =
-                    side * shift + Vector3::new(0.05 * pr.normal(), 0.05 * pr.normal(), 0.0);
-                let n = aim.xy().norm();
-                if n > aim_r {
-                    aim *= aim_r / n;
-                }
-                aim.z = pr.uniform(0.0, 0.06);
-                let pos = aim + d * Vector3::new(e.cos() * a.cos(), e.cos() * a.sin(), e.sin());
-                let roll = pr.uniform(-1.0, 1.0) * cfg.view_roll_deg.to_radians();
-                let t_world_cam = look_at(pos, aim, roll);
-                let t_base_ee = t_base_world * t_world_cam * t_ee_cam.inverse();
-                poses.push(PoseRecord {
-                    frame: format!("{k:0width$}"),
-                    pose: as_read_back_kuka(&t_base_ee)?,
-                    line: 0,
-                });
-            }
+            let draws: Vec<ViewDraw> = (0..cfg.frames).map(|_| ViewDraw::draw(&mut pr)).collect();
             robots.push(SimRobot {
                 name: cfg.robot_names[i].clone(),
                 t_world_base,
                 t_ee_cam,
                 camera: camera.clone(),
-                poses,
+                poses: Vec::new(),
             });
+            layouts.push((phi, draws));
+        }
+        // Choose the view spread whose shared fraction is closest to the requested overlap, then write the
+        // poses as they read back from the KUKA pose file.
+        let views_at = |s: f64| -> [Vec<Isometry3<f64>>; 2] {
+            [0, 1].map(|i| {
+                let (phi, draws) = &layouts[i];
+                draws
+                    .iter()
+                    .enumerate()
+                    .map(|(k, d)| d.view(cfg, *phi, s, k))
+                    .collect()
+            })
+        };
+        let shared_at = |s: f64| {
+            let v = views_at(s);
+            shared_fractions(&scene, &camera, [&v[0], &v[1]], &SharedConfig::default())
+        };
+        let (spread, shared) = solve_spread(cfg.overlap, shared_at);
+        let views = views_at(spread);
+        for (robot, views) in robots.iter_mut().zip(views) {
+            let t_base_world = robot.t_world_base.inverse();
+            let t_cam_ee = robot.t_ee_cam.inverse();
+            robot.poses = views
+                .iter()
+                .enumerate()
+                .map(|(k, t_world_cam)| {
+                    Ok(PoseRecord {
+                        frame: format!("{k:0width$}"),
+                        pose: as_read_back_kuka(&(t_base_world * t_world_cam * t_cam_ee))?,
+                        line: 0,
+                    })
+                })
+                .collect::<Result<_>>()?;
         }
         Ok(SimCell {
             config: cfg.clone(),
             noise: cfg.noise_model(),
             scene,
             robots,
+            view_spread: spread,
+            shared,
         })
     }
 
@@ -553,6 +659,14 @@ impl SimCell {
         extra.insert(
             "workspace_base1".into(),
             json!([ws.min[0], ws.min[1], ws.min[2], ws.max[0], ws.max[1], ws.max[2]]),
+        );
+        extra.insert(
+            "shared_fraction".into(),
+            json!({
+                self.robots[0].name.clone(): self.shared[0],
+                self.robots[1].name.clone(): self.shared[1],
+                "view_spread": self.view_spread,
+            }),
         );
         extra.insert("seed".into(), json!(self.config.seed));
         extra.insert("noise".into(), serde_json::to_value(&self.noise).unwrap());

@@ -27,6 +27,7 @@ pub mod cell;
 mod convert;
 pub mod mesh;
 pub mod noise;
+pub mod overlap;
 pub mod render;
 pub mod scene;
 
