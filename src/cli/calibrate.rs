@@ -3,6 +3,7 @@
 use super::output::{matrix4_json, matrix4_text, matrix6_json, spinner, timings_json};
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
+use depthcal::calibration::board_init::checkerboard_initializer;
 use depthcal::calibration::initializer::{GlobalRegistration, Initializer, UserGuess};
 use depthcal::calibration::robot_to_robot::{calibrate, CalibrateConfig};
 use depthcal::cell::Cell;
@@ -18,6 +19,9 @@ pub enum Method {
     Depth,
     /// Start from `--init` and refine with trimmed robust ICP.
     Guess,
+    /// Both robots' board poses (colour images of the cell's [board], needs the `vision` feature; or
+    /// --board-pose), T_base1_board · T_base2_board⁻¹, then trimmed robust ICP.
+    Checkerboard,
 }
 
 /// Arguments of `depthcal calibrate`.
@@ -31,6 +35,10 @@ pub struct Args {
     /// An initial T_base1_base2 (4x4 matrix file or a previous --json output); implies --method guess.
     #[arg(long)]
     init: Option<PathBuf>,
+    /// With --method checkerboard: a robot's board pose from an earlier `depthcal handeye --json` run,
+    /// as ROBOT=FILE (repeatable); robots without one have the board found in their colour images.
+    #[arg(long, value_name = "ROBOT=FILE", value_parser = parse_board_pose)]
+    board_pose: Vec<(String, PathBuf)>,
     /// Print one JSON object on stdout.
     #[arg(long)]
     json: bool,
@@ -43,6 +51,17 @@ pub struct Args {
     /// A JSON file with a (partial) CalibrateConfig.
     #[arg(long)]
     config: Option<PathBuf>,
+}
+
+fn parse_board_pose(s: &str) -> Result<(String, PathBuf), String> {
+    match s.split_once('=') {
+        Some((r, f)) if !r.trim().is_empty() && !f.trim().is_empty() => {
+            Ok((r.trim().to_string(), PathBuf::from(f.trim())))
+        }
+        _ => Err(format!(
+            "{s:?}: expected ROBOT=FILE (a robot name of cell.toml and a handeye --json output)"
+        )),
+    }
 }
 
 /// Runs the command.
@@ -62,7 +81,17 @@ pub fn run(a: Args) -> Result<()> {
         (None, Method::Depth) => Box::new(GlobalRegistration {
             config: cfg.register.clone(),
         }),
+        (None, Method::Checkerboard) => {
+            let (init, warnings) = checkerboard_initializer(&cell, &a.board_pose)?;
+            for w in warnings {
+                eprintln!("warning: {w}");
+            }
+            Box::new(init)
+        }
     };
+    if !a.board_pose.is_empty() && !matches!(a.method, Method::Checkerboard) {
+        anyhow::bail!("--board-pose is for --method checkerboard");
+    }
     let pb = spinner("opening the cell");
     let c = calibrate(&cell, init.as_ref(), &cfg, &mut |s| {
         pb.set_message(s.to_string())
