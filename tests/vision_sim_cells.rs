@@ -20,7 +20,9 @@ use depthcal::calibration::robot_to_robot::{calibrate, CalibrateConfig};
 use depthcal::cell::{Cell, CellRobot, Checkerboard, GroundTruth};
 use depthcal::geometry::transform::{isometry_from_rows, pose_error};
 use depthcal::sim::{SimBoardConfig, SimCell, SimConfig};
-use depthcal::vision::observe::{board_in_robot_base, observe_board, ObserveConfig};
+use depthcal::vision::observe::{
+    board_in_robot_base, observe_board, BoardObservations, ObserveConfig,
+};
 use nalgebra::Isometry3;
 use std::path::PathBuf;
 
@@ -62,6 +64,18 @@ fn color_images(r: &CellRobot) -> Vec<(String, PathBuf)> {
         .collect()
 }
 
+/// The hand-eye frames of the images where the board was found.
+fn hand_eye_frames(r: &CellRobot, obs: &BoardObservations) -> Vec<HandEyeFrame> {
+    obs.found
+        .iter()
+        .map(|o| HandEyeFrame {
+            id: o.frame.clone(),
+            t_base_ee: r.frames.iter().find(|f| f.id == o.frame).unwrap().t_base_ee,
+            t_cam_board: o.t_cam_board,
+        })
+        .collect()
+}
+
 /// Hand-eye from the robot's images: (T_ee_cam, T_base_board, frames used, PnP RMS px).
 fn hand_eye_from_images(
     r: &CellRobot,
@@ -74,15 +88,7 @@ fn hand_eye_from_images(
         &ObserveConfig::default(),
     )
     .unwrap();
-    let frames: Vec<HandEyeFrame> = obs
-        .found
-        .iter()
-        .map(|o| HandEyeFrame {
-            id: o.frame.clone(),
-            t_base_ee: r.frames.iter().find(|f| f.id == o.frame).unwrap().t_base_ee,
-            t_cam_board: o.t_cam_board,
-        })
-        .collect();
+    let frames = hand_eye_frames(r, &obs);
     let he = calibrate_hand_eye(&frames, &HandEyeConfig::default()).unwrap();
     let rms =
         (obs.found.iter().map(|o| o.rms_px.powi(2)).sum::<f64>() / obs.found.len() as f64).sqrt();
@@ -232,15 +238,7 @@ fn bad_input_is_named() {
         &ObserveConfig::default(),
     )
     .unwrap();
-    let frames: Vec<HandEyeFrame> = obs
-        .found
-        .iter()
-        .map(|o| HandEyeFrame {
-            id: o.frame.clone(),
-            t_base_ee: r.frames.iter().find(|f| f.id == o.frame).unwrap().t_base_ee,
-            t_cam_board: o.t_cam_board,
-        })
-        .collect();
+    let frames = hand_eye_frames(r, &obs);
     let e = calibrate_hand_eye(&frames, &HandEyeConfig::default())
         .unwrap_err()
         .to_string();

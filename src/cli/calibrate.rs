@@ -72,6 +72,7 @@ pub fn run(a: Args) -> Result<()> {
     cfg.seed = a.seed;
     cfg.use_priors = !a.no_priors;
     let cell = Cell::open(&a.cell)?;
+    let mut board_ms = None;
     let init: Box<dyn Initializer> = match (&a.init, a.method) {
         (Some(p), _) => Box::new(UserGuess {
             transform: read_matrix_file(p)?,
@@ -82,7 +83,9 @@ pub fn run(a: Args) -> Result<()> {
             config: cfg.register.clone(),
         }),
         (None, Method::Checkerboard) => {
+            let t0 = Instant::now();
             let (init, warnings) = checkerboard_initializer(&cell, &a.board_pose)?;
+            board_ms = Some(t0.elapsed().as_secs_f64() * 1e3);
             for w in warnings {
                 eprintln!("warning: {w}");
             }
@@ -93,10 +96,14 @@ pub fn run(a: Args) -> Result<()> {
         anyhow::bail!("--board-pose is for --method checkerboard");
     }
     let pb = spinner("opening the cell");
-    let c = calibrate(&cell, init.as_ref(), &cfg, &mut |s| {
+    let mut c = calibrate(&cell, init.as_ref(), &cfg, &mut |s| {
         pb.set_message(s.to_string())
     })
     .with_context(|| format!("calibrating {}", a.cell.display()))?;
+    if let Some(ms) = board_ms {
+        // The board poses are found before the clouds are fused.
+        c.timings_ms.insert(0, ("board_poses".into(), ms));
+    }
     pb.finish_and_clear();
     for w in &c.warnings {
         eprintln!("warning: {w}");

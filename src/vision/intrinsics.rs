@@ -98,13 +98,6 @@ pub fn calibrate_from_corners(
     height: u32,
     cfg: &IntrinsicsConfig,
 ) -> Result<IntrinsicCalibration> {
-    if views.len() < cfg.min_views.max(1) {
-        return Err(Error::InvalidInput(format!(
-            "intrinsic calibration needs the board in at least {} images, found it in {}",
-            cfg.min_views.max(1),
-            views.len()
-        )));
-    }
     for (name, c) in views {
         if c.len() != board.corner_count() {
             return Err(Error::InvalidInput(format!(
@@ -300,13 +293,20 @@ pub fn calibrate_intrinsics(
         )));
     };
     if views.len() < cfg.min_views.max(1) {
-        let list: Vec<String> = rejected.iter().map(|(n, r)| format!("{n}: {r}")).collect();
+        let list: String = rejected
+            .iter()
+            .map(|(n, r)| format!("\n  {n}: {r}"))
+            .collect();
         return Err(Error::InvalidInput(format!(
-            "intrinsic calibration needs the board in at least {} images, found it in {} of {}; rejected:\n  {}",
+            "intrinsic calibration needs the board in at least {} images, found it in {} of {}{}",
             cfg.min_views.max(1),
             views.len(),
             paths.len(),
-            list.join("\n  ")
+            if list.is_empty() {
+                String::new()
+            } else {
+                format!("; rejected:{list}")
+            }
         )));
     }
     let mut r = calibrate_from_corners(&views, board, w, h, cfg)?;
