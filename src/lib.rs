@@ -22,6 +22,8 @@ pub mod io;
 pub mod preprocess;
 pub mod registration;
 pub mod sim;
+#[cfg(feature = "vision")]
+pub mod vision;
 
 pub use error::{Error, Result};
 pub use geometry::PointCloud;

@@ -18,6 +18,9 @@
 //! Every path is relative to the cell directory (absolute paths are accepted too). Tables and keys this
 //! version does not know (e.g. `[priors]`) are kept and written back unchanged. See `docs/cell-format.md`.
 
+pub mod board;
+pub use board::Checkerboard;
+
 use crate::camera::depth::read_depth_png_header;
 use crate::camera::{read_depth_png, DepthImage, Intrinsics};
 use crate::error::{Error, Result};

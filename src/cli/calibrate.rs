@@ -3,6 +3,7 @@
 use super::output::{matrix4_json, matrix4_text, matrix6_json, spinner, timings_json};
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
+use depthcal::calibration::board_init::checkerboard_initializer;
 use depthcal::calibration::initializer::{GlobalRegistration, Initializer, UserGuess};
 use depthcal::calibration::robot_to_robot::{calibrate, CalibrateConfig};
 use depthcal::cell::Cell;
@@ -18,6 +19,9 @@ pub enum Method {
     Depth,
     /// Start from `--init` and refine with trimmed robust ICP.
     Guess,
+    /// Both robots' board poses (colour images of the cell's [board], needs the `vision` feature; or
+    /// --board-pose), T_base1_board · T_base2_board⁻¹, then trimmed robust ICP.
+    Checkerboard,
 }
 
 /// Arguments of `depthcal calibrate`.
@@ -31,6 +35,10 @@ pub struct Args {
     /// An initial T_base1_base2 (4x4 matrix file or a previous --json output); implies --method guess.
     #[arg(long)]
     init: Option<PathBuf>,
+    /// With --method checkerboard: a robot's board pose from an earlier `depthcal handeye --json` run,
+    /// as ROBOT=FILE (repeatable); robots without one have the board found in their colour images.
+    #[arg(long, value_name = "ROBOT=FILE", value_parser = parse_board_pose)]
+    board_pose: Vec<(String, PathBuf)>,
     /// Print one JSON object on stdout.
     #[arg(long)]
     json: bool,
@@ -45,6 +53,17 @@ pub struct Args {
     config: Option<PathBuf>,
 }
 
+fn parse_board_pose(s: &str) -> Result<(String, PathBuf), String> {
+    match s.split_once('=') {
+        Some((r, f)) if !r.trim().is_empty() && !f.trim().is_empty() => {
+            Ok((r.trim().to_string(), PathBuf::from(f.trim())))
+        }
+        _ => Err(format!(
+            "{s:?}: expected ROBOT=FILE (a robot name of cell.toml and a handeye --json output)"
+        )),
+    }
+}
+
 /// Runs the command.
 pub fn run(a: Args) -> Result<()> {
     let start = Instant::now();
@@ -53,6 +72,7 @@ pub fn run(a: Args) -> Result<()> {
     cfg.seed = a.seed;
     cfg.use_priors = !a.no_priors;
     let cell = Cell::open(&a.cell)?;
+    let mut board_ms = None;
     let init: Box<dyn Initializer> = match (&a.init, a.method) {
         (Some(p), _) => Box::new(UserGuess {
             transform: read_matrix_file(p)?,
@@ -63,12 +83,28 @@ pub fn run(a: Args) -> Result<()> {
             config: cfg.register.clone(),
             ..GlobalRegistration::default()
         }),
+        (None, Method::Checkerboard) => {
+            let t0 = Instant::now();
+            let (init, warnings) = checkerboard_initializer(&cell, &a.board_pose)?;
+            board_ms = Some(t0.elapsed().as_secs_f64() * 1e3);
+            for w in warnings {
+                eprintln!("warning: {w}");
+            }
+            Box::new(init)
+        }
     };
+    if !a.board_pose.is_empty() && !matches!(a.method, Method::Checkerboard) {
+        anyhow::bail!("--board-pose is for --method checkerboard");
+    }
     let pb = spinner("opening the cell");
-    let c = calibrate(&cell, init.as_ref(), &cfg, &mut |s| {
+    let mut c = calibrate(&cell, init.as_ref(), &cfg, &mut |s| {
         pb.set_message(s.to_string())
     })
     .with_context(|| format!("calibrating {}", a.cell.display()))?;
+    if let Some(ms) = board_ms {
+        // The board poses are found before the clouds are fused.
+        c.timings_ms.insert(0, ("board_poses".into(), ms));
+    }
     pb.finish_and_clear();
     for w in &c.warnings {
         eprintln!("warning: {w}");

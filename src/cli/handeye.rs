@@ -20,8 +20,21 @@ pub struct Args {
     #[arg(long)]
     pub robot_poses: PathBuf,
     /// Board poses in the camera T_cam_board (from any tool), CSV with a header, rows matched by frame id.
-    #[arg(long)]
-    pub target_poses: PathBuf,
+    #[arg(long, required_unless_present = "images", conflicts_with = "images")]
+    pub target_poses: Option<PathBuf>,
+    /// Instead of --target-poses: a directory of checkerboard images named by frame id (<frame>.png, .jpg,
+    /// ...); the board is found in each and its pose solved (needs --board, --square, --intrinsics and the
+    /// `vision` feature).
+    #[arg(long, value_name = "DIR")]
+    pub images: Option<PathBuf>,
+    #[command(flatten)]
+    pub board: super::vision_args::BoardArgs,
+    /// Intrinsics JSON of the camera that took --images (e.g. from `depthcal intrinsics --output`).
+    #[arg(long, value_name = "FILE", requires = "images")]
+    pub intrinsics: Option<PathBuf>,
+    /// With --images: also write the solved T_cam_board per frame to this pose file (matrix format).
+    #[arg(long, value_name = "FILE", requires = "images")]
+    pub save_target_poses: Option<PathBuf>,
     /// Format of --robot-poses: kuka (frame,x_mm,y_mm,z_mm,a_deg,b_deg,c_deg), matrix (frame + 16
     /// numbers row-major, metres) or xyzquat (frame,x,y,z,qx,qy,qz,qw, metres).
     #[arg(long, default_value = "kuka")]
@@ -58,8 +71,24 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     config.refine = !a.no_refine;
     config.seed = a.seed;
     let robot = read_with_hint(&a.robot_poses, a.robot_format, "--robot-format")?;
-    let target = read_with_hint(&a.target_poses, a.target_format, "--target-format")?;
-    let mut frames = frames_from_records(&robot, &a.robot_poses, &target, &a.target_poses)?;
+    let (robot, target, target_path) = match (&a.target_poses, &a.images) {
+        (Some(p), _) => (
+            robot,
+            read_with_hint(p, a.target_format, "--target-format")?,
+            p.clone(),
+        ),
+        (None, Some(dir)) => {
+            // Frames whose image shows no board are left out (and reported).
+            let target = board_poses_from_images(&a, dir, &robot)?;
+            let robot = robot
+                .into_iter()
+                .filter(|r| target.iter().any(|t| t.frame == r.frame))
+                .collect();
+            (robot, target, dir.clone())
+        }
+        (None, None) => anyhow::bail!("give --target-poses FILE or --images DIR"),
+    };
+    let mut frames = frames_from_records(&robot, &a.robot_poses, &target, &target_path)?;
     if a.eye_to_hand {
         for f in &mut frames {
             f.t_cam_board = f.t_cam_board.inverse();
@@ -83,6 +112,71 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         print_text(&r, &a, x_name, z_name);
     }
     Ok(())
+}
+
+/// T_cam_board per frame from the images in `dir` (detection + PnP); frames without the board are
+/// reported and left out.
+#[cfg(feature = "vision")]
+fn board_poses_from_images(
+    a: &Args,
+    dir: &std::path::Path,
+    robot: &[depthcal::geometry::pose::PoseRecord],
+) -> anyhow::Result<Vec<depthcal::geometry::pose::PoseRecord>> {
+    use depthcal::camera::Intrinsics;
+    use depthcal::geometry::pose::{write_poses, PoseRecord};
+    use depthcal::vision::observe::{find_frame_images, observe_board, ObserveConfig};
+    let board = a.board.board()?;
+    let Some(ip) = &a.intrinsics else {
+        anyhow::bail!("--images needs --intrinsics FILE (the camera's intrinsics JSON)");
+    };
+    let intr = Intrinsics::from_json_file(ip)?;
+    let ids: Vec<String> = robot.iter().map(|r| r.frame.clone()).collect();
+    let (images, extra) = find_frame_images(dir, &ids)?;
+    for p in &extra {
+        eprintln!(
+            "warning: {} matches no frame of {} and is ignored",
+            p.display(),
+            a.robot_poses.display()
+        );
+    }
+    let obs = observe_board(&images, &board, &intr, &ObserveConfig::default())?;
+    for line in obs.rejected_lines() {
+        eprintln!("warning: {line}; frame left out");
+    }
+    eprintln!(
+        "board ({board}) found in {} of {} images, PnP RMS {:.3} px (worst {:.3} px)",
+        obs.found.len(),
+        images.len(),
+        (obs.found.iter().map(|o| o.rms_px * o.rms_px).sum::<f64>() / obs.found.len() as f64)
+            .sqrt(),
+        obs.found.iter().map(|o| o.rms_px).fold(0.0, f64::max)
+    );
+    let records: Vec<PoseRecord> = obs
+        .found
+        .iter()
+        .map(|o| PoseRecord {
+            frame: o.frame.clone(),
+            pose: o.t_cam_board,
+            line: 0,
+        })
+        .collect();
+    if let Some(p) = &a.save_target_poses {
+        write_poses(p, &records, PoseFormat::Matrix)?;
+        eprintln!("wrote {}", p.display());
+    }
+    Ok(records)
+}
+
+#[cfg(not(feature = "vision"))]
+fn board_poses_from_images(
+    _a: &Args,
+    _dir: &std::path::Path,
+    _robot: &[depthcal::geometry::pose::PoseRecord],
+) -> anyhow::Result<Vec<depthcal::geometry::pose::PoseRecord>> {
+    anyhow::bail!(
+        "depthcal handeye --images: {}",
+        super::vision_args::WITHOUT_VISION
+    )
 }
 
 /// Reads a pose file in `format`; when its header names another format, the error says which flag to pass.
@@ -172,7 +266,11 @@ fn to_json(r: &HandEyeResult, a: &Args, x_name: &str, z_name: &str) -> serde_jso
     );
     o.insert(
         "target_poses".into(),
-        json!(a.target_poses.display().to_string()),
+        json!(a.target_poses.as_ref().map(|p| p.display().to_string())),
+    );
+    o.insert(
+        "images".into(),
+        json!(a.images.as_ref().map(|p| p.display().to_string())),
     );
     o.insert(
         "residuals".into(),

@@ -6,9 +6,11 @@ mod calibrate;
 mod convert;
 mod fuse;
 mod handeye;
+mod intrinsics;
 mod output;
 mod register;
 mod simulate;
+mod vision_args;
 
 /// depthcal: depth-only calibration of multi-robot cells, and point-cloud registration.
 #[derive(Parser)]
@@ -36,6 +38,8 @@ enum Command {
     Convert(convert::Args),
     /// Hand-eye calibration: T_ee_cam and T_base_board from robot poses and camera-to-board poses.
     Handeye(handeye::Args),
+    /// Camera intrinsics from checkerboard images (Zhang's method; needs the `vision` feature).
+    Intrinsics(intrinsics::Args),
     /// Write a simulated two-robot cell dataset (depth, colour, poses) with ground truth.
     Simulate(simulate::Args),
 }
@@ -71,6 +75,7 @@ pub fn run() -> i32 {
         Command::Convert(a) => convert::run(a),
         Command::Handeye(a) => handeye::run(a),
         Command::Simulate(a) => simulate::run(a),
+        Command::Intrinsics(a) => intrinsics::run(a),
     };
     match result {
         Ok(()) => 0,

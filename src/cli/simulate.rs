@@ -37,6 +37,10 @@ pub struct Args {
     /// Do not render colour images.
     #[arg(long)]
     pub no_color: bool,
+    /// Put a checkerboard (COLSxROWS inner corners) on the table, clear of objects; written as [board] in
+    /// cell.toml and its pose in ground_truth.json (square edge from --square, default 0.03 m).
+    #[command(flatten)]
+    pub board: super::vision_args::BoardArgs,
     /// A JSON file with any fields of SimConfig (see docs/simulate.md); the flags above override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
@@ -75,6 +79,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     if a.no_color {
         cfg.color = false;
+    }
+    if a.board.given() {
+        let mut b = cfg.scene.board.clone().unwrap_or_default();
+        if let Some((c, r)) = a.board.board {
+            (b.cols, b.rows) = (c, r);
+        }
+        if let Some(sq) = a.board.square {
+            b.square_m = sq;
+        }
+        cfg.scene.board = Some(b);
     }
     if a.out_dir.exists() {
         if !a.out_dir.is_dir() {

@@ -608,6 +608,9 @@ impl SimCell {
             ),
         );
         m.extra.insert("priors".into(), toml::Value::Table(priors));
+        if let Some(b) = &self.scene.board {
+            m.extra.insert("board".into(), b.manifest_table());
+        }
         m
     }
 
@@ -668,6 +671,26 @@ impl SimCell {
                 "view_spread": self.view_spread,
             }),
         );
+        if let Some(b) = &self.scene.board {
+            // The board pose in the world and in each robot's base (T_base_board = T_world_base⁻¹ · T_world_board).
+            let in_bases: serde_json::Map<String, Value> = self
+                .robots
+                .iter()
+                .map(|r| {
+                    (
+                        r.name.clone(),
+                        nested(&(r.t_world_base.inverse() * b.t_world_board)),
+                    )
+                })
+                .collect();
+            extra.insert(
+                "board".into(),
+                json!({"cols": b.board.cols, "rows": b.board.rows, "square_m": b.board.square_m,
+                       "T_world_board": nested(&b.t_world_board),
+                       "T_base1_board": nested(&(t_b1_w * b.t_world_board)),
+                       "T_base_board": in_bases}),
+            );
+        }
         extra.insert("seed".into(), json!(self.config.seed));
         extra.insert("noise".into(), serde_json::to_value(&self.noise).unwrap());
         extra.insert(

@@ -22,6 +22,7 @@
 //! ```
 
 pub mod analytic;
+pub mod board;
 pub mod camera;
 pub mod cell;
 mod convert;
@@ -32,6 +33,7 @@ pub mod render;
 pub mod scene;
 
 pub use analytic::{demo_scene, split_overlapping};
+pub use board::{SimBoard, SimBoardConfig};
 pub use camera::{Resolution, SimCamera};
 pub use cell::{simulate_cell, SimCell, SimConfig, SimRobot, WriteStats};
 pub use mesh::{builtin_mesh, read_ply_mesh, MeshData, BUILTIN_MESHES};

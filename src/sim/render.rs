@@ -293,13 +293,21 @@ fn albedo(a: &Appearance, p: Vector) -> [f64; 3] {
     [base[0] as f64 * f, base[1] as f64 * f, base[2] as f64 * f]
 }
 
-fn shade(scene: &Scene, gamma: &Gamma, hit: &RawHit, p_world: Vector, dir: Vector) -> [u8; 3] {
+/// Shading of a hit; `grey` replaces the surface's albedo (the board's pixel coverage).
+fn shade(
+    scene: &Scene,
+    gamma: &Gamma,
+    hit: &RawHit,
+    p_world: Vector,
+    dir: Vector,
+    grey: Option<f64>,
+) -> [u8; 3] {
     let (look, inv) = scene.surface_look(hit.surface);
     let p_obj = match hit.surface {
         Surface::Floor => p_world * 0.5,
         _ => inv.transform_point(p_world),
     };
-    let a = albedo(look, p_obj);
+    let a = grey.map_or_else(|| albedo(look, p_obj), |g| [g; 3]);
     let key = Vector::new(0.3, -0.4, 1.0).normalize();
     let n = hit.normal;
     let light = 0.18 + 0.55 * n.dot(key).max(0.0) + 0.35 * n.dot(-dir).max(0.0);
@@ -386,7 +394,18 @@ pub fn render_frame(
                 px.shadow = shadowed(scene, cam, &inv2, origin2, &rects2, p);
             }
             if with_color {
-                px.rgb = shade(scene, &gamma, &hit, p, dir);
+                // The board on the table top: pixel coverage from the pixel centre's footprint.
+                let grey = match &scene.board {
+                    Some(b) if hit.surface == Surface::Table && hit.normal.z > 0.5 => {
+                        let table = |x: f64, y: f64| {
+                            let a = albedo(&scene.table_appearance, Vector::new(x, y, 0.0));
+                            0.299 * a[0] + 0.587 * a[1] + 0.114 * a[2]
+                        };
+                        b.pixel_albedo(intr, t_world_cam, u as f64, v as f64, &table)
+                    }
+                    _ => None,
+                };
+                px.rgb = shade(scene, &gamma, &hit, p, dir, grey);
             }
         }
     });
@@ -457,15 +476,32 @@ pub fn render_frame(
         let mut data = vec![0u8; w * h * 3];
         let color_seed = seed ^ 0xC010_0125_EED0_0002;
         let grain = if ideal_noise { 0.0 } else { 1.5 };
+        // Optics blur, in scenes with a board (the others render as before).
+        let blurred = scene
+            .board
+            .as_ref()
+            .filter(|b| b.config.blur_sigma_px > 0.0)
+            .map(|b| {
+                let rgb: Vec<u8> = pass1.iter().flat_map(|p| p.rgb).collect();
+                super::board::gaussian_blur(&rgb, w, h, 3, b.config.blur_sigma_px)
+            });
         data.par_chunks_mut(w * 3).enumerate().for_each(|(v, row)| {
             for u in 0..w {
                 let px = &pass1[v * w + u];
+                let value = |k: usize| match &blurred {
+                    Some(b) => b[(v * w + u) * 3 + k] as f64,
+                    None => px.rgb[k] as f64,
+                };
                 if grain > 0.0 {
                     // Sensor grain: one small offset per pixel, the same on the three channels.
                     let mut rng = Rng::stream(color_seed, (v * w + u) as u64);
                     let g = grain * normals.sample(&mut rng);
                     for k in 0..3 {
-                        row[u * 3 + k] = (px.rgb[k] as f64 + g).round().clamp(0.0, 255.0) as u8;
+                        row[u * 3 + k] = (value(k) + g).round().clamp(0.0, 255.0) as u8;
+                    }
+                } else if blurred.is_some() {
+                    for k in 0..3 {
+                        row[u * 3 + k] = value(k).round().clamp(0.0, 255.0) as u8;
                     }
                 } else {
                     row[u * 3..u * 3 + 3].copy_from_slice(&px.rgb);

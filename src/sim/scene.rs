@@ -6,6 +6,7 @@
 //! frame whose origin is the centre of its bounding box and whose `z` axis is the shape's axis (cylinders,
 //! cones, meshes' "up"); `T_world_object` maps it into the world.
 
+use super::board::{SimBoard, SimBoardConfig};
 use super::convert::{to_pose, to_vec};
 use super::mesh::{builtin_mesh, read_ply_mesh, MeshData, BUILTIN_MESHES};
 use crate::error::{Error, Result};
@@ -137,6 +138,9 @@ pub struct SceneConfig {
     pub floor_below_m: Option<f64>,
     /// Allow cylinders to lie on their side (default true; about a third of them do).
     pub lying_cylinders: bool,
+    /// A printed checkerboard on the table top, kept clear of objects (default none; see
+    /// [`crate::sim::board`]).
+    pub board: Option<SimBoardConfig>,
 }
 
 impl Default for SceneConfig {
@@ -157,6 +161,7 @@ impl Default for SceneConfig {
             table_size_m: [1.0, 0.8, 0.04],
             floor_below_m: None,
             lying_cylinders: true,
+            board: None,
         }
     }
 }
@@ -203,6 +208,9 @@ impl SceneConfig {
                 "table_size_m",
                 format!("must be positive, found {:?}", self.table_size_m),
             );
+        }
+        if let Some(b) = &self.board {
+            b.validate()?;
         }
         if let Some(f) = self.floor_below_m {
             if !(f.is_finite() && f > self.table_size_m[2]) {
@@ -454,6 +462,8 @@ pub struct Scene {
     pub objects: Vec<SceneObject>,
     /// The table's look in the colour image.
     pub table_appearance: Appearance,
+    /// The checkerboard on the table, if any (colour image only).
+    pub board: Option<SimBoard>,
     /// Bodies: the table first, then the objects in order.
     pub(crate) bodies: Vec<Body>,
     /// Cast with parry's own ray casts (GJK for cylinders and cones) instead of the closed forms (tests).
@@ -624,6 +634,7 @@ impl Scene {
             floor_below_m,
             objects,
             table_appearance,
+            board: None,
             bodies,
             use_parry: false,
         })
@@ -671,6 +682,11 @@ impl Scene {
         };
         let mut mesh_next = rng.below(meshes.len().max(1));
         let mut placed: Vec<([f64; 2], f64)> = Vec::new();
+        // Its own stream, so that scenes without a board are as before.
+        let board = match &cfg.board {
+            Some(b) => Some(SimBoard::place(b, &mut Rng::stream(seed, 0xB0A4D))?),
+            None => None,
+        };
         let mut objects = Vec::with_capacity(cfg.objects);
         let r_ws = cfg.workspace_radius_m;
         for i in 0..cfg.objects {
@@ -727,6 +743,9 @@ impl Scene {
                 if placed
                     .iter()
                     .any(|(p, f)| (p[0] - c[0]).hypot(p[1] - c[1]) < f + fp + cfg.min_gap_m)
+                    || board
+                        .as_ref()
+                        .is_some_and(|b| b.overlaps_disc(c, fp + cfg.min_gap_m))
                 {
                     continue;
                 }
@@ -768,12 +787,14 @@ impl Scene {
                 );
             }
         }
-        Scene::new(
+        let mut scene = Scene::new(
             cfg.table_size_m,
             cfg.floor_below_m,
             objects,
             table_appearance,
-        )
+        )?;
+        scene.board = board;
+        Ok(scene)
     }
 
     /// The first hit of the ray `origin + t·dir` (`t ∈ (0, max_t]`), world frame, metres. `dir` need not be

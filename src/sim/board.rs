@@ -1,0 +1,358 @@
+//! A printed checkerboard lying on the table, for the checkerboard workflow (hand-eye from images,
+//! robot-to-robot by checkerboard) with exact ground truth.
+//!
+//! The board is a sheet of zero thickness on the table top (it changes the colour image, not the depth).
+//! Its frame follows [`Checkerboard`]: origin at inner corner 0, `x` along a row, `z` into the board, here
+//! straight down into the table, so that a camera above sees the printed side. Objects are kept off the
+//! sheet ([`SimBoard::overlaps_disc`]) so that views from above see the whole pattern.
+//!
+//! In the colour image a pixel on the sheet gets the mean albedo of `supersample²` sub-pixel rays (each
+//! intersected with the table plane exactly), so edges are antialiased by their pixel coverage; the image
+//! is then blurred by a Gaussian of `blur_sigma_px` (optics) before the sensor grain of the renderer.
+
+use crate::camera::Intrinsics;
+use crate::cell::Checkerboard;
+use crate::error::{Error, Result};
+use crate::geometry::Rng;
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// Settings of the simulated board (metres, degrees). Every field has a default.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SimBoardConfig {
+    /// Inner corners along the board x axis (default 9).
+    pub cols: u32,
+    /// Inner corners along the board y axis (default 6).
+    pub rows: u32,
+    /// Square edge, metres (default 0.03).
+    pub square_m: f64,
+    /// Centre of the pattern on the table top, table-frame `[x, y]`, metres (default `[0, 0]`).
+    pub center_m: [f64; 2],
+    /// The board's yaw is uniform in ± this, degrees (default 180).
+    pub yaw_range_deg: f64,
+    /// White paper around the pattern, metres (default 0.02).
+    pub margin_m: f64,
+    /// Linear albedo of the black and the white squares (default `[0.04, 0.85]`).
+    pub albedo: [f64; 2],
+    /// Sub-pixel rays per axis for the pixel coverage (default 6: 36 rays per pixel).
+    pub supersample: u32,
+    /// Gaussian blur of the colour image (optics), pixels (default 0.7; 0 = none).
+    pub blur_sigma_px: f64,
+}
+
+impl Default for SimBoardConfig {
+    fn default() -> Self {
+        SimBoardConfig {
+            cols: 9,
+            rows: 6,
+            square_m: 0.03,
+            center_m: [0.0, 0.0],
+            yaw_range_deg: 180.0,
+            margin_m: 0.02,
+            albedo: [0.04, 0.85],
+            supersample: 6,
+            blur_sigma_px: 0.7,
+        }
+    }
+}
+
+impl SimBoardConfig {
+    /// The board geometry.
+    pub fn checkerboard(&self) -> Result<Checkerboard> {
+        Checkerboard::new(self.cols, self.rows, self.square_m).map_err(|e| match e {
+            Error::Config { msg, .. } => Error::Config {
+                field: "scene.board".into(),
+                msg,
+            },
+            e => e,
+        })
+    }
+
+    /// Checks the ranges; the error names the field.
+    pub fn validate(&self) -> Result<()> {
+        self.checkerboard()?;
+        let bad = |f: &str, msg: String| {
+            Err(Error::Config {
+                field: format!("scene.board.{f}"),
+                msg,
+            })
+        };
+        if !(self.margin_m.is_finite() && self.margin_m >= 0.0) {
+            return bad("margin_m", format!("must be ≥ 0, found {}", self.margin_m));
+        }
+        if !self.albedo.iter().all(|a| (0.0..=1.0).contains(a)) || self.albedo[0] >= self.albedo[1]
+        {
+            return bad(
+                "albedo",
+                format!(
+                    "must be [black, white] in [0, 1] with black < white, found {:?}",
+                    self.albedo
+                ),
+            );
+        }
+        if !(1..=16).contains(&self.supersample) {
+            return bad(
+                "supersample",
+                format!("must be 1–16, found {}", self.supersample),
+            );
+        }
+        if !(self.blur_sigma_px.is_finite() && (0.0..=5.0).contains(&self.blur_sigma_px)) {
+            return bad(
+                "blur_sigma_px",
+                format!("must be in [0, 5] pixels, found {}", self.blur_sigma_px),
+            );
+        }
+        let finite = self.center_m.iter().all(|v| v.is_finite());
+        if !(self.yaw_range_deg.is_finite() && self.yaw_range_deg >= 0.0 && finite) {
+            return bad(
+                "yaw_range_deg / center_m",
+                "must be finite (yaw range ≥ 0)".into(),
+            );
+        }
+        Ok(())
+    }
+}
+
+/// A board placed on the table.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SimBoard {
+    /// The board geometry.
+    pub board: Checkerboard,
+    /// Pose of the board frame in the world (table) frame, metres (`z` points down into the table).
+    pub t_world_board: Isometry3<f64>,
+    /// The settings it was made from.
+    pub config: SimBoardConfig,
+}
+
+impl SimBoard {
+    /// Places the board of `cfg` on the table top (`z = 0`) with a random yaw drawn from `rng`.
+    pub fn place(cfg: &SimBoardConfig, rng: &mut Rng) -> Result<Self> {
+        cfg.validate()?;
+        let board = cfg.checkerboard()?;
+        let r = cfg.yaw_range_deg.to_radians();
+        let yaw = rng.uniform(-r, r);
+        // z down: a half turn about x, then the yaw about the world z.
+        let rot = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw)
+            * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI);
+        let s = board.square_m;
+        let half = Vector3::new(
+            (board.cols - 1) as f64 * s / 2.0,
+            (board.rows - 1) as f64 * s / 2.0,
+            0.0,
+        );
+        let centre = Vector3::new(cfg.center_m[0], cfg.center_m[1], 0.0);
+        let origin = centre - rot * half;
+        Ok(SimBoard {
+            board,
+            t_world_board: Isometry3::from_parts(Translation3::from(origin), rot),
+            config: cfg.clone(),
+        })
+    }
+
+    /// The sheet (pattern and margin) in board coordinates: `[x0, x1, y0, y1]`, metres.
+    fn sheet(&self) -> [f64; 4] {
+        let s = self.board.square_m;
+        let m = self.config.margin_m;
+        [
+            -s - m,
+            self.board.cols as f64 * s + m,
+            -s - m,
+            self.board.rows as f64 * s + m,
+        ]
+    }
+
+    /// True when a disc of radius `r` (metres) centred at table point `c` overlaps the sheet.
+    pub fn overlaps_disc(&self, c: [f64; 2], r: f64) -> bool {
+        let p = self.t_world_board.inverse() * Point3::new(c[0], c[1], 0.0);
+        let [x0, x1, y0, y1] = self.sheet();
+        let dx = (x0 - p.x).max(p.x - x1).max(0.0);
+        let dy = (y0 - p.y).max(p.y - y1).max(0.0);
+        dx.hypot(dy) < r
+    }
+
+    /// Linear albedo of the table-frame point `(x, y, 0)`: `None` off the sheet.
+    pub fn albedo_at(&self, x: f64, y: f64) -> Option<f64> {
+        let p = self.t_world_board.inverse() * Point3::new(x, y, 0.0);
+        let [x0, x1, y0, y1] = self.sheet();
+        if p.x < x0 || p.x > x1 || p.y < y0 || p.y > y1 {
+            return None;
+        }
+        let [black, white] = self.config.albedo;
+        Some(match self.board.is_black(p.x, p.y) {
+            Some(true) => black,
+            _ => white,
+        })
+    }
+
+    /// Mean albedo over the footprint of pixel `(u, v)` of a camera at `t_world_cam` (`supersample²` rays,
+    /// each intersected with the table plane), or `None` when the pixel centre's ray does not meet the sheet.
+    /// `table` gives the albedo of table points off the sheet (rays at the sheet's edge).
+    pub fn pixel_albedo(
+        &self,
+        intr: &Intrinsics,
+        t_world_cam: &Isometry3<f64>,
+        u: f64,
+        v: f64,
+        table: &dyn Fn(f64, f64) -> f64,
+    ) -> Option<f64> {
+        let o = t_world_cam.translation.vector;
+        let hit = |pu: f64, pv: f64| -> Option<(f64, f64)> {
+            let [x, y] = intr.pixel_ray([pu, pv]);
+            let d = t_world_cam.rotation * Vector3::new(x, y, 1.0);
+            if d.z >= -1e-12 || o.z <= 0.0 {
+                return None;
+            }
+            let t = -o.z / d.z;
+            Some((o.x + t * d.x, o.y + t * d.y))
+        };
+        let (cx, cy) = hit(u, v)?;
+        self.albedo_at(cx, cy)?;
+        let n = self.config.supersample.max(1);
+        let mut sum = 0.0;
+        let mut count = 0usize;
+        for j in 0..n {
+            for i in 0..n {
+                let du = (i as f64 + 0.5) / n as f64 - 0.5;
+                let dv = (j as f64 + 0.5) / n as f64 - 0.5;
+                if let Some((x, y)) = hit(u + du, v + dv) {
+                    sum += self.albedo_at(x, y).unwrap_or_else(|| table(x, y));
+                    count += 1;
+                }
+            }
+        }
+        (count > 0).then(|| sum / count as f64)
+    }
+
+    /// The `[board]` table of `cell.toml`.
+    pub fn manifest_table(&self) -> toml::Value {
+        self.board.to_toml()
+    }
+}
+
+/// Separable Gaussian blur of an interleaved image with `channels` channels (edge pixels repeated).
+/// Returns the blurred values as `f32`; `sigma` in pixels (≤ 0: a copy).
+pub fn gaussian_blur(
+    data: &[u8],
+    width: usize,
+    height: usize,
+    channels: usize,
+    sigma: f64,
+) -> Vec<f32> {
+    let src: Vec<f32> = data.iter().map(|&v| v as f32).collect();
+    if sigma <= 0.0 || width == 0 || height == 0 {
+        return src;
+    }
+    let r = (3.0 * sigma).ceil() as isize;
+    let mut k: Vec<f32> = (-r..=r)
+        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp() as f32)
+        .collect();
+    let s: f32 = k.iter().sum();
+    k.iter_mut().for_each(|v| *v /= s);
+    let (w, h, c) = (width as isize, height as isize, channels);
+    let mut tmp = vec![0f32; src.len()];
+    for y in 0..h {
+        for x in 0..w {
+            for ch in 0..c {
+                let mut acc = 0.0;
+                for (t, kv) in k.iter().enumerate() {
+                    let xx = (x + t as isize - r).clamp(0, w - 1);
+                    acc += kv * src[((y * w + xx) as usize) * c + ch];
+                }
+                tmp[((y * w + x) as usize) * c + ch] = acc;
+            }
+        }
+    }
+    let mut out = vec![0f32; src.len()];
+    for y in 0..h {
+        for x in 0..w {
+            for ch in 0..c {
+                let mut acc = 0.0;
+                for (t, kv) in k.iter().enumerate() {
+                    let yy = (y + t as isize - r).clamp(0, h - 1);
+                    acc += kv * tmp[((yy * w + x) as usize) * c + ch];
+                }
+                out[((y * w + x) as usize) * c + ch] = acc;
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn placement_frame_and_colours() {
+        let cfg = SimBoardConfig {
+            center_m: [0.1, -0.05],
+            ..Default::default()
+        };
+        let b = SimBoard::place(&cfg, &mut Rng::new(3)).unwrap();
+        // z points down; the pattern centre is where asked.
+        let z = b.t_world_board.rotation * Vector3::z();
+        assert!((z - Vector3::new(0.0, 0.0, -1.0)).norm() < 1e-12);
+        let c = b.t_world_board * Point3::new(4.0 * 0.03, 2.5 * 0.03, 0.0);
+        assert!((c.x - 0.1).abs() < 1e-12 && (c.y + 0.05).abs() < 1e-12 && c.z.abs() < 1e-12);
+        // Square (0, 0) (before corner 0) is black; (1, 0) white; the margin is white paper.
+        let at = |x: f64, y: f64| {
+            let p = b.t_world_board * Point3::new(x, y, 0.0);
+            b.albedo_at(p.x, p.y)
+        };
+        let near = |a: Option<f64>, b: f64| a.is_some_and(|a| (a - b).abs() < 1e-9);
+        assert!(near(at(-0.015, -0.015), 0.04));
+        assert!(near(at(0.015, -0.015), 0.85));
+        assert!(near(at(-0.035, -0.015), 0.85));
+        assert_eq!(at(-0.06, 0.0), None);
+        assert!(b.overlaps_disc([0.1, -0.05], 0.01));
+        assert!(!b.overlaps_disc([0.6, 0.6], 0.05));
+    }
+
+    #[test]
+    fn pixel_coverage_is_the_area_fraction() {
+        // A camera 0.5 m above the board, looking straight down: a pixel straddling an edge gets the
+        // coverage-weighted albedo, a pixel inside a square the square's albedo.
+        let cfg = SimBoardConfig {
+            yaw_range_deg: 0.0,
+            supersample: 16,
+            ..Default::default()
+        };
+        let b = SimBoard::place(&cfg, &mut Rng::new(1)).unwrap();
+        let intr = Intrinsics::pinhole(640, 480, 500.0, 500.0, 320.0, 240.0);
+        let down = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI);
+        let cam = Isometry3::from_parts(Translation3::new(0.0, 0.0, 0.5), down);
+        let t_cam_board = cam.inverse() * b.t_world_board;
+        let proj =
+            |x: f64, y: f64| intr.project((t_cam_board * Point3::new(x, y, 0.0)).coords.into());
+        let table = |_: f64, _: f64| 0.5;
+        // The edge x = 0.03 between squares (1, 1) (black) and (2, 1) (white), in the middle of the edge:
+        // a pixel centred 0.25 px right of the edge has 3/4 of its area right of it.
+        let [u, v] = proj(0.03, 0.015);
+        let g = b.pixel_albedo(&intr, &cam, u + 0.25, v, &table).unwrap();
+        let [u_black, _] = proj(0.015, 0.015);
+        let expect = if u_black < u {
+            0.25 * 0.04 + 0.75 * 0.85
+        } else {
+            0.25 * 0.85 + 0.75 * 0.04
+        };
+        assert!((g - expect).abs() < 0.01, "{g} vs {expect}");
+        let [u, v] = proj(0.045, 0.045);
+        let g = b.pixel_albedo(&intr, &cam, u, v, &table).unwrap();
+        assert!((g - 0.04).abs() < 1e-9, "{g}");
+    }
+
+    #[test]
+    fn blur_keeps_the_mean_and_spreads_an_edge() {
+        let (w, h) = (20, 5);
+        let data: Vec<u8> = (0..w * h)
+            .map(|i| if i % w < 10 { 0 } else { 200 })
+            .collect();
+        let b = gaussian_blur(&data, w, h, 1, 1.0);
+        let mean_in: f32 = data.iter().map(|&v| v as f32).sum::<f32>() / data.len() as f32;
+        let mean_out: f32 = b.iter().sum::<f32>() / b.len() as f32;
+        assert!((mean_in - mean_out).abs() < 0.5);
+        assert!(b[9] > 10.0 && b[9] < 100.0 && b[10] > 100.0 && b[10] < 190.0);
+        assert_eq!(gaussian_blur(&data, w, h, 1, 0.0)[10], 200.0);
+    }
+}

@@ -1,0 +1,29 @@
+//! The image side of calibration (cargo feature `vision`): checkerboard inner corners with subpixel
+//! refinement ([`corners`]), intrinsic calibration by Zhang's method ([`intrinsics`]), the board pose in
+//! each camera by PnP ([`pnp`]), and the board seen by a whole set of images or by a cell's robots
+//! ([`observe`]).
+//!
+//! OpenCV (through the `opencv` crate) does the image work; its types stay inside this module. The public
+//! API takes and returns nalgebra types, [`GreyImage`] and the crate's own [`Intrinsics`] and
+//! [`Checkerboard`]: pixels follow librealsense and OpenCV alike (`(0, 0)` is the centre of the top-left
+//! pixel), lengths are metres.
+//!
+//! [`Intrinsics`]: crate::camera::Intrinsics
+//! [`Checkerboard`]: crate::cell::Checkerboard
+
+pub mod circles;
+pub mod corners;
+mod cv;
+pub mod image;
+pub mod intrinsics;
+pub mod observe;
+pub mod pnp;
+
+pub use corners::{detect_checkerboard, BoardCorners, CornerConfig};
+pub use image::{read_grey_image, GreyImage};
+pub use intrinsics::{calibrate_intrinsics, IntrinsicCalibration, IntrinsicsConfig, ViewResidual};
+pub use observe::{
+    board_in_robot_base, find_frame_images, observe_board, BoardObservation, BoardObservations,
+    RobotBoardPose,
+};
+pub use pnp::{board_pose, BoardPose};
