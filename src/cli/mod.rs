@@ -3,9 +3,11 @@
 use clap::{Parser, Subcommand};
 
 mod calibrate;
+mod capture;
 mod convert;
 mod fuse;
 mod handeye;
+mod import;
 mod output;
 mod register;
 mod simulate;
@@ -38,6 +40,10 @@ enum Command {
     Handeye(handeye::Args),
     /// Write a simulated two-robot cell dataset (depth, colour, poses) with ground truth.
     Simulate(simulate::Args),
+    /// Take frames from a connected RealSense camera into a cell dataset (cargo feature `realsense`).
+    Capture(capture::Args),
+    /// Import a recording (ROS1 .bag; RealSense .db3 with the `realsense` feature) into a cell dataset.
+    Import(import::Args),
 }
 
 /// Parses the command line, runs the command, and returns the process exit code.
@@ -71,6 +77,8 @@ pub fn run() -> i32 {
         Command::Convert(a) => convert::run(a),
         Command::Handeye(a) => handeye::run(a),
         Command::Simulate(a) => simulate::run(a),
+        Command::Capture(a) => capture::run(a),
+        Command::Import(a) => import::run(a),
     };
     match result {
         Ok(()) => 0,
