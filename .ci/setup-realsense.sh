@@ -6,7 +6,8 @@
 # extension module is copied to target/realsense/lib/librealsense2.so.2.59, given that soname and a
 # dependency on libpython3.11 (it references the Python C API), and described by a realsense2.pc. The
 # wheel itself also stays installed: scripts/make_realsense_recording.py uses it to write the synthetic
-# recordings that tests/realsense_playback.rs imports.
+# ROS2 .db3 recordings that tests/realsense_playback.rs imports. librealsense 2.59 no longer writes ROS1 .bag,
+# so the 2.56 wheel is installed beside it (Python only, never linked) to write the .bag recordings.
 #
 # Idempotent: a second run finds everything in place and only exports the variables. Users install Intel's
 # librealsense packages instead (see the README).
@@ -16,6 +17,8 @@ rs_wheel="pyrealsense2==2.59.1.11053"
 rs_root="$(pwd)/target/realsense"
 rs_lib="$rs_root/lib"
 rs_py="$rs_root/python"
+rs_bag_wheel="pyrealsense2==2.56.5.9235"
+rs_py_bag="$rs_root/python-2.56"
 
 rs_missing=()
 for pkg in patchelf libusb-1.0-0 libudev1 libpython3.11; do
@@ -30,7 +33,14 @@ fi
 
 if ! ls "$rs_py"/pyrealsense2/pyrealsense2.cpython-311-*.so >/dev/null 2>&1; then
   echo "installing $rs_wheel into $rs_py"
-  python3 -m pip install --quiet --disable-pip-version-check --no-deps --target "$rs_py" "$rs_wheel"
+  python3 -m pip install --quiet --disable-pip-version-check --root-user-action=ignore --no-deps \
+    --target "$rs_py" "$rs_wheel"
+fi
+
+if ! ls "$rs_py_bag"/pyrealsense2/pyrealsense2.cpython-311-*.so >/dev/null 2>&1; then
+  echo "installing $rs_bag_wheel into $rs_py_bag"
+  python3 -m pip install --quiet --disable-pip-version-check --root-user-action=ignore --no-deps \
+    --target "$rs_py_bag" "$rs_bag_wheel"
 fi
 
 if [ ! -f "$rs_lib/librealsense2.so.2.59" ] || [ ! -f "$rs_lib/pkgconfig/realsense2.pc" ]; then
@@ -57,6 +67,7 @@ fi
 
 export PKG_CONFIG_PATH="$rs_lib/pkgconfig${PKG_CONFIG_PATH:+:$PKG_CONFIG_PATH}"
 export LD_LIBRARY_PATH="$rs_lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
-# Where the tests' recording script finds pyrealsense2.
+# Where the tests' recording script finds pyrealsense2 (2.59: .db3; 2.56: .bag).
 export DEPTHCAL_PYREALSENSE2_PATH="$rs_py"
+export DEPTHCAL_PYREALSENSE2_BAG_PATH="$rs_py_bag"
 echo "librealsense $rs_version for the realsense feature: $rs_lib"

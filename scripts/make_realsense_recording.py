@@ -2,7 +2,7 @@
 """Write a small synthetic RealSense recording with librealsense's own recorder (pyrealsense2).
 
 A `software_device` with a depth sensor (Z16) and, with --color, a colour sensor (RGB8) is recorded to OUT
-(librealsense 2.59 writes ROS2 `.db3`; the extension chooses the container where the library supports it).
+(librealsense 2.59 writes ROS2 `.db3` only; 2.56 and older write ROS1 `.bag`).
 The frames carry known values so that a test can check an import exactly:
 
     depth[k][v][u] = (1000 + 7*u + 13*v + 101*k) % 65536, except 0 where (u + v + k) % 11 == 0
@@ -163,7 +163,7 @@ def main():
         json.dumps(
             {
                 "file": a.out,
-                "librealsense": rs.__version__,
+                "librealsense": getattr(rs, "__version__", "unknown"),
                 "frames": a.frames,
                 "delivered": len(sink),
                 "bytes": os.path.getsize(a.out) if os.path.exists(a.out) else None,

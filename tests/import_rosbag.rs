@@ -673,7 +673,7 @@ fn librealsense_layout_with_depth_units_and_32fc1_metres() {
     };
     let depth_topic = "/device_0/sensor_0/Depth_0/image/data";
     let mut msgs = vec![msg(
-        "/device_0/sensor_0/option/Depth Units/value",
+        "/device_0/sensor_0/option/Depth_Units/value",
         "std_msgs/Float32",
         T0_NS,
         0.0001f32.to_le_bytes().to_vec(),
@@ -1047,5 +1047,70 @@ fn import_speed_vga() {
     let mb = std::fs::metadata(&bag).unwrap().len() as f64 / 1e6;
     eprintln!("import of {n} VGA depth+colour frames ({mb:.1} MB LZ4 bag): {secs:.2} s");
     check_frames(&cell, "r", &frame_ids[..2], &[0, 1], 0, true);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn corrupted_bags_give_errors_not_panics() {
+    use depthcal::capture::rosbag::{BagImportConfig, BagRecording};
+    use depthcal::capture::{import_recording, MatchConfig, PoseRows, RobotSetup};
+    let dir = common::scratch("bag-corrupt");
+    let bag = dir.join("rec.bag");
+    ros_driver_bag(
+        &bag,
+        4,
+        &[Compression::None, Compression::Lz4, Compression::Bz2],
+    );
+    let poses = dir.join("poses.csv");
+    write_pose_file(&poses, &ids(0..4), None, 0);
+    let rows = PoseRows::read(&poses, None).unwrap();
+    let good = std::fs::read(&bag).unwrap();
+    let mut errors = 0;
+    // Overwrite 24 bytes at 40 places from the bag header to the index; also cut the file short.
+    let n = good.len();
+    let mut cases: Vec<Vec<u8>> = (0..40)
+        .map(|i| {
+            let at = 13 + (n - 40) * i / 40;
+            let mut b = good.clone();
+            for x in &mut b[at..at + 24] {
+                *x = x.wrapping_mul(31).wrapping_add(0x5a);
+            }
+            b
+        })
+        .collect();
+    cases.extend((1..8).map(|i| good[..n * i / 8].to_vec()));
+    for (i, bytes) in cases.iter().enumerate() {
+        let path = dir.join(format!("bad{i}.bag"));
+        std::fs::write(&path, bytes).unwrap();
+        let cell = dir.join(format!("cell{i}"));
+        let result = std::panic::catch_unwind(|| {
+            BagRecording::open(&path, &BagImportConfig::default()).and_then(|mut b| {
+                import_recording(
+                    &mut b,
+                    &rows,
+                    &MatchConfig::default(),
+                    &RobotSetup::new("r", Some(nalgebra::Isometry3::identity())),
+                    &cell,
+                )
+            })
+        });
+        match result {
+            Err(_) => panic!("case {i}: the reader panicked on a corrupted bag"),
+            Ok(Err(e)) => {
+                errors += 1;
+                assert!(
+                    e.to_string().contains(&format!("bad{i}.bag")),
+                    "case {i}: {e}"
+                );
+                assert!(!cell.exists(), "case {i}: nothing may be written");
+            }
+            Ok(Ok(_)) => {} // the corruption hit pixel data: imported as recorded
+        }
+    }
+    assert!(
+        errors >= 10,
+        "only {errors} of {} corruptions were detected",
+        cases.len()
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -6,9 +6,11 @@
 //!   `Depth Units` option). Colour is stored as the colour sensor delivers it (not aligned to depth).
 //! * [`PlaybackRecording`] plays a recording back (ROS2 `.db3` from librealsense ≥ 2.59, ROS1 `.bag` from
 //!   older versions) sensor by sensor, not through a pipeline: a pipeline's frame syncer drops frames (in a
-//!   test, the first depth frame of a recording), the sensors deliver every recorded frame. Playback runs
-//!   twice, as fast as the frames can be handled (not in real time, so nothing is dropped): once to list the
-//!   frames and their timestamps, once to copy the frames chosen by the pose matching.
+//!   test, the first depth frame of a recording), the sensors deliver every recorded frame. Each playback
+//!   starts one sensor only (the playback begins reading when the first sensor starts, so frames of a sensor
+//!   started after it would be lost) and runs as fast as the frames are handled (not in real time, so nothing
+//!   is dropped). The recording is played once per sensor to list the frames and their timestamps, and once
+//!   per sensor again to copy the frames chosen by the pose matching.
 //!
 //! Timestamps are librealsense's frame timestamps converted from milliseconds to seconds.
 
@@ -478,12 +480,13 @@ struct StreamChoice {
 /// What one playback pass collects from the frame callback.
 #[derive(Default)]
 struct Collector {
-    /// The uids of the depth and colour streams.
-    depth_uid: i32,
+    /// The uids of the depth and colour streams of the playback running (uids differ between playbacks).
+    depth_uid: Option<i32>,
     color_uid: Option<i32>,
     color_format: sys::rs2_format,
-    /// Every frame seen: (stream uid, frame number, timestamp ms).
-    seen: Vec<(i32, u64, f64)>,
+    /// Every depth and colour frame seen: (frame number, timestamp ms).
+    seen_depth: Vec<(u64, f64)>,
+    seen_color: Vec<(u64, f64)>,
     /// Frame numbers of the depth and colour frames to copy.
     want_depth: HashSet<u64>,
     want_color: HashSet<u64>,
@@ -523,14 +526,18 @@ fn collect(frame: *mut sys::rs2_frame, c: &mut Collector) -> std::result::Result
             &mut fps
         )
     )?;
-    let is_depth = uid == c.depth_uid;
+    let is_depth = Some(uid) == c.depth_uid;
     let is_color = Some(uid) == c.color_uid;
     if !is_depth && !is_color {
         return Ok(());
     }
     let number = call!("frame number", rs2_get_frame_number(frame))? as u64;
     let t_ms = call!("frame timestamp", rs2_get_frame_timestamp(frame))?;
-    c.seen.push((uid, number, t_ms));
+    if is_depth {
+        c.seen_depth.push((number, t_ms));
+    } else {
+        c.seen_color.push((number, t_ms));
+    }
     let wanted = if is_depth {
         c.want_depth.contains(&number)
     } else {
@@ -726,29 +733,46 @@ impl Playback {
         intrinsics_from_rs2(&intr, units as f64).map_err(|m| format!("depth intrinsics: {m}"))
     }
 
-    /// Plays the whole recording once, handing every depth/colour frame to the collector.
+    /// Plays the whole recording once with the streams `choices` (all of one sensor) open, handing their frames
+    /// to the collector. Only one sensor is started per playback: the playback starts reading when the first
+    /// sensor starts, and frames of a sensor started later would be lost.
     fn play(
         &self,
-        depth: &StreamChoice,
-        color: Option<&StreamChoice>,
+        choices: &[&StreamChoice],
         collector: &Mutex<Collector>,
     ) -> std::result::Result<(), String> {
         let user = collector as *const Mutex<Collector> as *mut c_void;
-        let mut lists = Vec::new();
-        let mut started: Vec<usize> = Vec::new();
+        let sensor = choices[0].sensor;
+        debug_assert!(choices.iter().all(|c| c.sensor == sensor));
+        let s = self.sensors[sensor].0.as_ptr();
+        let (list, _) = self.profiles(sensor)?;
+        let mut profiles = Vec::with_capacity(choices.len());
+        for ch in choices {
+            profiles.push(call!(
+                "profile",
+                rs2_get_stream_profile(list.0.as_ptr(), ch.profile_index)
+            )?);
+        }
+        if profiles.len() == 1 {
+            call!("open sensor", rs2_open(s, profiles[0]))?;
+        } else {
+            call!(
+                "open sensor",
+                rs2_open_multiple(s, profiles.as_mut_ptr(), profiles.len() as i32)
+            )?;
+        }
+        // Frames seen so far (earlier playbacks of other sensors included).
+        let count = || {
+            collector
+                .lock()
+                .map(|c| c.seen_depth.len() + c.seen_color.len())
+                .unwrap_or(usize::MAX)
+        };
+        let before = count();
+        let mut started = false;
         let mut result = (|| -> std::result::Result<(), String> {
-            for ch in std::iter::once(depth).chain(color) {
-                let (list, _) = self.profiles(ch.sensor)?;
-                let p = call!(
-                    "profile",
-                    rs2_get_stream_profile(list.0.as_ptr(), ch.profile_index)
-                )?;
-                let s = self.sensors[ch.sensor].0.as_ptr();
-                call!("open sensor", rs2_open(s, p))?;
-                lists.push(list);
-                call!("start sensor", rs2_start(s, Some(on_frame), user))?;
-                started.push(ch.sensor);
-            }
+            call!("start sensor", rs2_start(s, Some(on_frame), user))?;
+            started = true;
             // Wait for the playback to finish.
             let begin = Instant::now();
             let mut playing_seen = false;
@@ -760,7 +784,7 @@ impl Playback {
                 if st == sys::rs2_playback_status_RS2_PLAYBACK_STATUS_PLAYING {
                     playing_seen = true;
                 }
-                let any = collector.lock().map(|c| !c.seen.is_empty()).unwrap_or(true);
+                let any = count() > before;
                 if st == sys::rs2_playback_status_RS2_PLAYBACK_STATUS_STOPPED
                     && (playing_seen || any || begin.elapsed() > Duration::from_secs(2))
                 {
@@ -772,14 +796,14 @@ impl Playback {
                 std::thread::sleep(Duration::from_millis(5));
             }
         })();
-        for &s in &started {
-            let s = self.sensors[s].0.as_ptr();
-            let r =
-                call!("stop sensor", rs2_stop(s)).and_then(|_| call!("close sensor", rs2_close(s)));
-            if result.is_ok() {
-                result = r;
-            }
-        }
+        let stop = if started {
+            call!("stop sensor", rs2_stop(s))
+        } else {
+            Ok(())
+        };
+        let close = call!("close sensor", rs2_close(s));
+        drop(list);
+        result = result.and(stop).and(close);
         result
     }
 }
@@ -837,16 +861,44 @@ impl PlaybackRecording {
         let pb = Playback::open(path)?;
         let (d, c, all) = pb.streams(color)?;
         let intr = pb.intrinsics(&d)?;
+        drop(pb);
         let collector = Mutex::new(Collector {
-            depth_uid: d.uid,
-            color_uid: c.as_ref().map(|c| c.uid),
             color_format: c.as_ref().map(|c| c.format).unwrap_or(0),
             want_depth,
             want_color,
             ..Default::default()
         });
-        pb.play(&d, c.as_ref(), &collector)?;
-        drop(pb);
+        // One playback per sensor (true = the depth stream, false = the colour stream).
+        let groups: Vec<Vec<bool>> = match &c {
+            Some(c) if c.sensor == d.sensor => vec![vec![true, false]],
+            Some(_) => vec![vec![true], vec![false]],
+            None => vec![vec![true]],
+        };
+        for group in groups {
+            let pb = Playback::open(path)?;
+            let (d2, c2, _) = pb.streams(color)?;
+            let mut chosen: Vec<&StreamChoice> = Vec::with_capacity(group.len());
+            for &is_depth in &group {
+                chosen.push(if is_depth {
+                    &d2
+                } else {
+                    c2.as_ref()
+                        .ok_or("the colour stream is missing on another opening")?
+                });
+            }
+            {
+                let mut col = collector
+                    .lock()
+                    .map_err(|_| "the frame callback panicked".to_string())?;
+                col.depth_uid = group.contains(&true).then_some(d2.uid);
+                col.color_uid = if group.contains(&false) {
+                    c2.as_ref().map(|c| c.uid)
+                } else {
+                    None
+                };
+            }
+            pb.play(&chosen, &collector)?;
+        }
         let collector = collector
             .into_inner()
             .map_err(|_| "the frame callback panicked".to_string())?;
@@ -880,14 +932,12 @@ impl PlaybackRecording {
             streams,
             collector: col,
         } = Self::pass(&path, color, HashSet::new(), HashSet::new()).map_err(at)?;
-        let list = |uid: i32, name: &str| -> Result<StreamFrames> {
-            let mut frames: Vec<FrameStamp> = col
-                .seen
+        let list = |seen: &[(u64, f64)], name: &str| -> Result<StreamFrames> {
+            let mut frames: Vec<FrameStamp> = seen
                 .iter()
-                .filter(|s| s.0 == uid)
                 .map(|s| FrameStamp {
-                    t_s: s.2 * 1e-3,
-                    key: s.1,
+                    t_s: s.1 * 1e-3,
+                    key: s.0,
                 })
                 .collect();
             let mut keys = HashSet::new();
@@ -903,8 +953,11 @@ impl PlaybackRecording {
                 frames,
             })
         };
-        let depth = list(d.uid, &d.name)?;
-        let color = c.as_ref().map(|c| list(c.uid, &c.name)).transpose()?;
+        let depth = list(&col.seen_depth, &d.name)?;
+        let color = c
+            .as_ref()
+            .map(|c| list(&col.seen_color, &c.name))
+            .transpose()?;
         Ok(PlaybackRecording {
             path,
             color_wanted: color.is_some(),

@@ -12,7 +12,7 @@
 //! units that belong to a depth topic are those whose topic shares the longest prefix with it (e.g.
 //! `/camera/depth/image_rect_raw` ↔ `/camera/depth/camera_info`, and in librealsense's layout
 //! `/device_0/sensor_0/Depth_0/image/data` ↔ `/device_0/sensor_0/Depth_0/info/camera_info` and
-//! `/device_0/sensor_0/option/Depth Units/value`).
+//! `/device_0/sensor_0/option/Depth_Units/value`).
 
 use super::{FrameStamp, Recording, StreamFrames};
 use crate::camera::{DepthImage, DistortionModel, Intrinsics, DEFAULT_DEPTH_SCALE};
@@ -29,8 +29,9 @@ pub const IMAGE_TYPE: &str = "sensor_msgs/Image";
 pub const CAMERA_INFO_TYPE: &str = "sensor_msgs/CameraInfo";
 /// The ROS message type of librealsense's option values.
 pub const FLOAT32_TYPE: &str = "std_msgs/Float32";
-/// The topic suffix of librealsense's depth-units option.
-pub const DEPTH_UNITS_SUFFIX: &str = "/option/Depth Units/value";
+/// The topic suffixes of librealsense's depth-units option (librealsense writes `Depth_Units`).
+pub const DEPTH_UNITS_SUFFIXES: [&str; 2] =
+    ["/option/Depth_Units/value", "/option/Depth Units/value"];
 
 /// Settings of a `.bag` import. Topics left `None` are found automatically:
 /// * depth: the one image topic with a depth encoding (`16UC1`, `mono16`, `32FC1`); among several, the one
@@ -459,12 +460,17 @@ fn check_bag_header(path: &Path, data: &[u8], file_len: u64) -> Result<()> {
             }
         }
     }
+    // The header record's data (padding) follows; the chunk section starts after it.
+    let _ = m
+        .bytes("bag header padding")
+        .map_err(|e| bag_error(path, e))?;
+    let chunks_start = (version.len() + m.pos) as u64;
     match index_pos {
-        Some(p) if p > 0 && p <= file_len => Ok(()),
+        Some(p) if p >= chunks_start && p <= file_len => Ok(()),
         _ => Err(Error::format(
             path,
-            "the bag has no index (index_pos is 0 or past the end of the file): the recording was probably \
-             interrupted; `rosbag reindex` repairs it",
+            "the bag has no index (index_pos is 0, inside the header or past the end of the file): the \
+             recording was probably interrupted; `rosbag reindex` repairs it",
         )),
     }
 }
@@ -610,7 +616,7 @@ impl BagRecording {
                     let ci = RosCameraInfo::decode(data).map_err(at)?;
                     infos.entry(topic.to_string()).or_default().push(ci);
                 }
-                FLOAT32_TYPE if topic.ends_with(DEPTH_UNITS_SUFFIX) => {
+                FLOAT32_TYPE if DEPTH_UNITS_SUFFIXES.iter().any(|x| topic.ends_with(x)) => {
                     let b: [u8; 4] = data
                         .get(..4)
                         .and_then(|b| b.try_into().ok())
