@@ -5,12 +5,13 @@
 
 mod common;
 
+use common::{depthcal, listing};
+
 use depthcal::cell::Cell;
 use depthcal::geometry::pose::{KukaPose, PoseFormat};
 use depthcal::geometry::transform::pose_error;
 use std::io::Write;
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::Path;
 
 // ---------------------------------------------------------------------------------------------------------
 // A ROS1 bag writer (format 2.0), written from the format description, independent of the reader.
@@ -421,18 +422,6 @@ fn write_pose_file(path: &Path, ids: &[String], times: Option<&[f64]>, first_k: 
     std::fs::write(path, s).unwrap();
 }
 
-fn depthcal(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_depthcal"))
-        .args(args)
-        .output()
-        .expect("run depthcal");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
-
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
@@ -486,26 +475,6 @@ fn check_frames(cell: &Path, robot: &str, ids: &[String], ks: &[u32], first_k: u
             }
         }
     }
-}
-
-fn listing(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
-    let mut out = Vec::new();
-    if !dir.exists() {
-        return out;
-    }
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                out.push((p.clone(), std::fs::read(&p).unwrap()));
-            }
-        }
-    }
-    out.sort();
-    out
 }
 
 #[test]

@@ -8,6 +8,8 @@
 
 mod common;
 
+use common::depthcal;
+
 use depthcal::camera::DistortionModel;
 use depthcal::cell::Cell;
 use depthcal::geometry::pose::KukaPose;
@@ -84,18 +86,6 @@ fn record(env: &str, out: &Path, frames: u32) -> serde_json::Value {
         "the software device delivered every frame"
     );
     summary
-}
-
-fn depthcal(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_depthcal"))
-        .args(args)
-        .output()
-        .expect("run depthcal");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
 }
 
 fn s(p: &Path) -> &str {

@@ -808,17 +808,24 @@ fn nearest(frames: &[FrameStamp], t: f64) -> Option<usize> {
     Some(best)
 }
 
-/// A recording that can be imported into a cell: the camera's intrinsics, the depth (and colour) frames it
-/// holds, and a way to read chosen frames.
-pub trait Recording {
+/// What a recording holds: its file, the depth camera's intrinsics and the frames of its streams.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RecordingInfo {
     /// The recording's file.
-    fn path(&self) -> &Path;
+    pub path: PathBuf,
     /// The depth camera's intrinsics with its depth scale.
-    fn intrinsics(&self) -> &Intrinsics;
+    pub intrinsics: Intrinsics,
     /// The depth frames, in timestamp order.
-    fn depth(&self) -> &StreamFrames;
+    pub depth: StreamFrames,
     /// The colour frames, when the recording has colour and it was asked for.
-    fn color(&self) -> Option<&StreamFrames>;
+    pub color: Option<StreamFrames>,
+}
+
+/// A recording that can be imported into a cell: what it holds ([`RecordingInfo`]) and a way to read chosen
+/// frames.
+pub trait Recording {
+    /// What the recording holds.
+    fn info(&self) -> &RecordingInfo;
     /// Reads the depth frames with keys `depth` and the colour frames with keys `color` (keys from
     /// [`FrameStamp::key`]), in the order given. Colour is converted to RGB8.
     fn read_frames(
@@ -826,6 +833,23 @@ pub trait Recording {
         depth: &[u64],
         color: &[u64],
     ) -> Result<(Vec<DepthImage>, Vec<RgbImage>)>;
+
+    /// The recording's file.
+    fn path(&self) -> &Path {
+        &self.info().path
+    }
+    /// The depth camera's intrinsics with its depth scale.
+    fn intrinsics(&self) -> &Intrinsics {
+        &self.info().intrinsics
+    }
+    /// The depth frames, in timestamp order.
+    fn depth(&self) -> &StreamFrames {
+        &self.info().depth
+    }
+    /// The colour frames, when the recording has colour and it was asked for.
+    fn color(&self) -> Option<&StreamFrames> {
+        self.info().color.as_ref()
+    }
 }
 
 /// What [`import_recording`] did.

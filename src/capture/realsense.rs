@@ -14,14 +14,14 @@
 //!
 //! Timestamps are librealsense's frame timestamps converted from milliseconds to seconds.
 
-use super::{FrameStamp, Recording, StreamFrames};
+use super::{FrameStamp, Recording, RecordingInfo, StreamFrames};
 use crate::camera::{DepthImage, DistortionModel, Intrinsics};
 use crate::error::{Error, Result};
 use crate::sim::RgbImage;
 use realsense_sys as sys;
 use std::collections::{HashMap, HashSet};
 use std::ffi::{c_void, CStr, CString};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::ptr::NonNull;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
@@ -512,20 +512,33 @@ unsafe extern "C" fn on_frame(frame: *mut sys::rs2_frame, user: *mut c_void) {
     let _ = result;
 }
 
-fn collect(frame: *mut sys::rs2_frame, c: &mut Collector) -> std::result::Result<(), String> {
-    let profile = call!("frame profile", rs2_get_frame_stream_profile(frame))?;
+/// The fields of a stream profile.
+struct ProfileData {
+    stream: sys::rs2_stream,
+    format: sys::rs2_format,
+    index: i32,
+    uid: i32,
+    fps: i32,
+}
+
+fn profile_data(p: *const sys::rs2_stream_profile) -> std::result::Result<ProfileData, String> {
     let (mut stream, mut format, mut index, mut uid, mut fps) = (0, 0, 0, 0, 0);
     call!(
         "stream profile data",
-        rs2_get_stream_profile_data(
-            profile,
-            &mut stream,
-            &mut format,
-            &mut index,
-            &mut uid,
-            &mut fps
-        )
+        rs2_get_stream_profile_data(p, &mut stream, &mut format, &mut index, &mut uid, &mut fps)
     )?;
+    Ok(ProfileData {
+        stream,
+        format,
+        index,
+        uid,
+        fps,
+    })
+}
+
+fn collect(frame: *mut sys::rs2_frame, c: &mut Collector) -> std::result::Result<(), String> {
+    let profile = call!("frame profile", rs2_get_frame_stream_profile(frame))?;
+    let ProfileData { uid, .. } = profile_data(profile)?;
     let is_depth = Some(uid) == c.depth_uid;
     let is_color = Some(uid) == c.color_uid;
     if !is_depth && !is_color {
@@ -652,18 +665,13 @@ impl Playback {
             let (list, n) = self.profiles(s)?;
             for i in 0..n {
                 let p = call!("profile", rs2_get_stream_profile(list.0.as_ptr(), i))?;
-                let (mut stream, mut format, mut index, mut uid, mut fps) = (0, 0, 0, 0, 0);
-                call!(
-                    "profile data",
-                    rs2_get_stream_profile_data(
-                        p,
-                        &mut stream,
-                        &mut format,
-                        &mut index,
-                        &mut uid,
-                        &mut fps
-                    )
-                )?;
+                let ProfileData {
+                    stream,
+                    format,
+                    index,
+                    uid,
+                    fps,
+                } = profile_data(p)?;
                 let name = format!(
                     "{} {index} ({}, {fps} fps)",
                     stream_name(stream),
@@ -833,11 +841,8 @@ fn format_name(f: sys::rs2_format) -> String {
 
 /// A RealSense recording (`.db3`, `.bag`) read through librealsense's playback.
 pub struct PlaybackRecording {
-    path: PathBuf,
+    info: RecordingInfo,
     color_wanted: bool,
-    intrinsics: Intrinsics,
-    depth: StreamFrames,
-    color: Option<StreamFrames>,
     /// Every stream the recording holds (for messages).
     pub streams: Vec<String>,
 }
@@ -959,28 +964,21 @@ impl PlaybackRecording {
             .map(|c| list(&col.seen_color, &c.name))
             .transpose()?;
         Ok(PlaybackRecording {
-            path,
             color_wanted: color.is_some(),
-            intrinsics,
-            depth,
-            color,
+            info: RecordingInfo {
+                path,
+                intrinsics,
+                depth,
+                color,
+            },
             streams,
         })
     }
 }
 
 impl Recording for PlaybackRecording {
-    fn path(&self) -> &Path {
-        &self.path
-    }
-    fn intrinsics(&self) -> &Intrinsics {
-        &self.intrinsics
-    }
-    fn depth(&self) -> &StreamFrames {
-        &self.depth
-    }
-    fn color(&self) -> Option<&StreamFrames> {
-        self.color.as_ref()
+    fn info(&self) -> &RecordingInfo {
+        &self.info
     }
 
     fn read_frames(
@@ -988,9 +986,10 @@ impl Recording for PlaybackRecording {
         depth: &[u64],
         color: &[u64],
     ) -> Result<(Vec<DepthImage>, Vec<RgbImage>)> {
-        let at = |m: String| Error::format(&self.path, format!("librealsense playback: {m}"));
+        let path = &self.info.path;
+        let at = |m: String| Error::format(path, format!("librealsense playback: {m}"));
         let got = Self::pass(
-            &self.path,
+            path,
             self.color_wanted,
             depth.iter().copied().collect(),
             color.iter().copied().collect(),

@@ -14,14 +14,14 @@
 //! `/device_0/sensor_0/Depth_0/image/data` ↔ `/device_0/sensor_0/Depth_0/info/camera_info` and
 //! `/device_0/sensor_0/option/Depth_Units/value`).
 
-use super::{FrameStamp, Recording, StreamFrames};
+use super::{FrameStamp, Recording, RecordingInfo, StreamFrames};
 use crate::camera::{DepthImage, DistortionModel, Intrinsics, DEFAULT_DEPTH_SCALE};
 use crate::error::{Error, Result};
 use crate::sim::RgbImage;
 use rosbag::{ChunkRecord, IndexRecord, MessageRecord, RosBag};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashMap};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// The ROS message type of images.
 pub const IMAGE_TYPE: &str = "sensor_msgs/Image";
@@ -519,14 +519,11 @@ struct ImageMeta {
 
 /// A ROS1 bag opened for import: the topics, the chosen depth (and colour) topic, the intrinsics.
 pub struct BagRecording {
-    path: PathBuf,
+    info: RecordingInfo,
     bag: RosBag,
     conns: HashMap<u32, (String, String)>,
     /// Every topic of the bag, by name.
     pub topics: Vec<TopicInfo>,
-    depth: StreamFrames,
-    color: Option<StreamFrames>,
-    intrinsics: Intrinsics,
     /// The camera info topic the intrinsics come from.
     pub camera_info_topic: String,
     /// Where the depth scale came from (`option topic`, `config`, `REP 118 default`).
@@ -829,13 +826,15 @@ impl BagRecording {
         let depth = stream(&depth_topic);
         let color = color_topic.as_deref().map(stream);
         Ok(BagRecording {
-            path,
+            info: RecordingInfo {
+                path,
+                intrinsics,
+                depth,
+                color,
+            },
             bag,
             conns,
             topics,
-            depth,
-            color,
-            intrinsics,
             camera_info_topic: info_topic,
             depth_scale_source,
         })
@@ -843,17 +842,8 @@ impl BagRecording {
 }
 
 impl Recording for BagRecording {
-    fn path(&self) -> &Path {
-        &self.path
-    }
-    fn intrinsics(&self) -> &Intrinsics {
-        &self.intrinsics
-    }
-    fn depth(&self) -> &StreamFrames {
-        &self.depth
-    }
-    fn color(&self) -> Option<&StreamFrames> {
-        self.color.as_ref()
+    fn info(&self) -> &RecordingInfo {
+        &self.info
     }
 
     fn read_frames(
@@ -861,16 +851,16 @@ impl Recording for BagRecording {
         depth: &[u64],
         color: &[u64],
     ) -> Result<(Vec<DepthImage>, Vec<RgbImage>)> {
-        let depth_topic = self.depth.name.clone();
-        let color_topic = self.color.as_ref().map(|c| c.name.clone());
+        let depth_topic = self.info.depth.name.clone();
+        let color_topic = self.info.color.as_ref().map(|c| c.name.clone());
         let want_d: HashMap<u64, Vec<usize>> = group(depth);
         let want_c: HashMap<u64, Vec<usize>> = group(color);
         let mut out_d: Vec<Option<DepthImage>> = vec![None; depth.len()];
         let mut out_c: Vec<Option<RgbImage>> = vec![None; color.len()];
         let mut ord: HashMap<String, u64> = HashMap::new();
-        let path = self.path.clone();
-        let scale = self.intrinsics.depth_scale;
-        let (w, h) = (self.intrinsics.width, self.intrinsics.height);
+        let path = self.info.path.clone();
+        let intr = &self.info.intrinsics;
+        let (scale, w, h) = (intr.depth_scale, intr.width, intr.height);
         for_each_message(&path, &self.bag, &mut self.conns, |topic, tp, _, data| {
             if tp != IMAGE_TYPE {
                 return Ok(());
