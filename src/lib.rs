@@ -12,6 +12,7 @@
 
 pub mod calibration;
 pub mod camera;
+pub mod capture;
 pub mod cell;
 pub mod error;
 pub mod features;

@@ -400,7 +400,9 @@ pub fn frame_path(dir: &Path, pattern: &str, frame: &str) -> PathBuf {
     dir.join(pattern.replace(FRAME_PLACEHOLDER, frame))
 }
 
-fn read_hand_eye_file(path: &Path) -> Result<Isometry3<f64>> {
+/// Reads a hand-eye `T_ee_cam` JSON file: 16 numbers (row-major 4x4, metres), 4 rows of 4, or an object with a
+/// key `T_ee_cam`, `transform` or `matrix` holding either.
+pub fn read_hand_eye_file(path: &Path) -> Result<Isometry3<f64>> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let v: serde_json::Value = serde_json::from_str(&text)
         .map_err(|e| Error::format(path, format!("not valid JSON: {e}")))?;

@@ -3,10 +3,12 @@
 use clap::{Parser, Subcommand};
 
 mod calibrate;
+mod capture;
 mod convert;
 mod fuse;
 mod handeye;
 mod intrinsics;
+mod import;
 mod output;
 mod register;
 mod simulate;
@@ -42,6 +44,10 @@ enum Command {
     Intrinsics(intrinsics::Args),
     /// Write a simulated two-robot cell dataset (depth, colour, poses) with ground truth.
     Simulate(simulate::Args),
+    /// Take frames from a connected RealSense camera into a cell dataset (cargo feature `realsense`).
+    Capture(capture::Args),
+    /// Import a recording (ROS1 .bag; RealSense .db3 with the `realsense` feature) into a cell dataset.
+    Import(import::Args),
 }
 
 /// Parses the command line, runs the command, and returns the process exit code.
@@ -76,6 +82,8 @@ pub fn run() -> i32 {
         Command::Handeye(a) => handeye::run(a),
         Command::Simulate(a) => simulate::run(a),
         Command::Intrinsics(a) => intrinsics::run(a),
+        Command::Capture(a) => capture::run(a),
+        Command::Import(a) => import::run(a),
     };
     match result {
         Ok(()) => 0,

@@ -77,3 +77,38 @@ pub fn seven_scenes_frame_ids(frames_dir: &std::path::Path) -> Vec<String> {
     ids.sort();
     ids
 }
+
+/// Runs the `depthcal` binary with `args`; returns the exit code, stdout and stderr.
+pub fn depthcal(args: &[&str]) -> (i32, String, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_depthcal"))
+        .args(args)
+        .output()
+        .expect("run depthcal");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// Every file below `dir` with its bytes, sorted by path (empty when `dir` does not exist): a snapshot to
+/// check that a failed command wrote nothing.
+pub fn listing(dir: &std::path::Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    if !dir.exists() {
+        return out;
+    }
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                out.push((p.clone(), std::fs::read(&p).unwrap()));
+            }
+        }
+    }
+    out.sort();
+    out
+}
