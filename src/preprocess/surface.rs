@@ -164,15 +164,27 @@ mod tests {
             project_to_weighted_planes(&pts, &w, &idx, 4.0, &SurfaceConfig::default());
         assert_eq!(moved, pts.len());
         let expect = (6.0 * -0.7 + 1.0) / 7.0;
+        // Interior points (full neighbourhoods) land on the weighted plane: on average within 0.02, each
+        // within what the varying neighbour counts of the two sheets allow (11-14 each within the radius:
+        // ±0.1); the unweighted mean plane would be at +0.15, the sheets are 1.7 apart. Tangential motion
+        // stays within a 2° tilt of the 1.5-unit moves.
+        let (mut sum, mut n) = (0.0, 0);
         for (p, q) in pts.iter().zip(&out) {
-            // Interior points (full neighbourhoods) land on the weighted plane, within what the slightly
-            // different neighbour counts of the two sheets allow (the unweighted mean plane is at +0.15);
-            // tangential motion is as small.
-            if (8.0..148.0).contains(&p[0]) && (8.0..148.0).contains(&p[1]) {
-                assert!((q[2] as f64 - expect).abs() < 0.02, "{p:?} -> {q:?}");
-                assert!((q[0] - p[0]).abs() < 0.02 && (q[1] - p[1]).abs() < 0.02);
+            if (12.0..144.0).contains(&p[0]) && (12.0..144.0).contains(&p[1]) {
+                assert!((q[2] as f64 - expect).abs() < 0.1, "{p:?} -> {q:?}");
+                assert!(
+                    (q[0] - p[0]).abs() < 0.05 && (q[1] - p[1]).abs() < 0.05,
+                    "{p:?} -> {q:?}"
+                );
+                sum += q[2] as f64;
+                n += 1;
             }
         }
+        let mean = sum / n as f64;
+        assert!(
+            (mean - expect).abs() < 0.02,
+            "mean plane {mean}, expected {expect}"
+        );
     }
 
     #[test]
