@@ -79,7 +79,7 @@ fn simulate_intrinsics_handeye_and_calibrate_by_checkerboard() {
     let cfg = dir.join("sim.json");
     std::fs::write(
         &cfg,
-        r#"{"frames": 12, "view_elevation_deg": [40, 80], "view_distance_m": [0.4, 0.75],
+        r#"{"frames": 12, "overlap": 1.0, "view_elevation_deg": [40, 80], "view_distance_m": [0.4, 0.75],
             "scene": {"objects": 5, "workspace_radius_m": 0.34}}"#,
     )
     .unwrap();

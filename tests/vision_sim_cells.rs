@@ -27,11 +27,13 @@ use nalgebra::Isometry3;
 use std::path::PathBuf;
 
 /// A cell with a 9x6 board of 30 mm squares at the table centre and objects around it; views from
-/// above (40–80° elevation) so that most frames see the whole board.
+/// above (40–80° elevation) so that most frames see the whole board, swinging the full ±145° around the
+/// workspace (`overlap` 1: the configured ranges in full) so that the hand-eye motions are well excited.
 fn board_cell(seed: u64) -> SimConfig {
     let mut c = SimConfig {
         seed,
         frames: 16,
+        overlap: 1.0,
         view_elevation_deg: [40.0, 80.0],
         view_distance_m: [0.4, 0.75],
         ..SimConfig::default()
