@@ -57,33 +57,47 @@ pub fn estimate_normals_with_curvature(
     points
         .par_iter()
         .map(|p| {
-            let nb = match cfg.radius {
-                Some(r) => index.within(p, r as f32, cfg.max_neighbors),
-                None => index.knn(p, cfg.max_neighbors),
-            };
-            let nb = if nb.len() < 3 { index.knn(p, 3) } else { nb };
-            if nb.len() < 3 {
-                return ([0.0, 0.0, 1.0], 0.0);
+            match neighbourhood_covariance(points, index, p, cfg) {
+                Some(c) => normal_from_covariance(&c),
+                None => ([0.0, 0.0, 1.0], 0.0),
             }
-            let mut mean = Vector3::zeros();
-            for &(i, _) in &nb {
-                mean += to_v64(&points[i]);
-            }
-            mean /= nb.len() as f64;
-            let mut c = Matrix3::zeros();
-            for &(i, _) in &nb {
-                let d = to_v64(&points[i]) - mean;
-                c += d * d.transpose();
-            }
-            normal_from_covariance(&c)
         })
         .unzip()
 }
 
+/// Scatter matrix (unnormalised covariance) of `p`'s neighbourhood: the neighbours within `cfg.radius`
+/// (or the `cfg.max_neighbors` nearest), the 3 nearest when fewer; `None` with fewer than 3 points.
+fn neighbourhood_covariance(
+    points: &[[f32; 3]],
+    index: &KdIndex,
+    p: &[f32; 3],
+    cfg: &NormalConfig,
+) -> Option<Matrix3<f64>> {
+    let nb = match cfg.radius {
+        Some(r) => index.within(p, r as f32, cfg.max_neighbors),
+        None => index.knn(p, cfg.max_neighbors),
+    };
+    let nb = if nb.len() < 3 { index.knn(p, 3) } else { nb };
+    if nb.len() < 3 {
+        return None;
+    }
+    let mut mean = Vector3::zeros();
+    for &(i, _) in &nb {
+        mean += to_v64(&points[i]);
+    }
+    mean /= nb.len() as f64;
+    let mut c = Matrix3::zeros();
+    for &(i, _) in &nb {
+        let d = to_v64(&points[i]) - mean;
+        c += d * d.transpose();
+    }
+    Some(c)
+}
+
 /// Regularised local covariance of each point for GICP, packed `[xx, xy, xz, yy, yz, zz]`, with its unit
 /// normal: the covariance of the point's neighbourhood (as for [`estimate_normals`]) with its eigenvalues
-/// replaced by `(ε, 1, 1)` (ε = 1e-3, the "plane" regularisation of GICP and small_gicp), so that every
-/// point is a small disc in its tangent plane whatever the local density. Points with fewer than 3
+/// divided by the largest and floored at ε = 1e-3 (a clean plane becomes GICP's `(ε, 1, 1)` disc, a noisy
+/// blob stays round), so that the scale does not depend on the local density. Points with fewer than 3
 /// neighbours get the identity and the normal `[0, 0, 1]`.
 pub fn estimate_covariances(
     points: &[[f32; 3]],
@@ -94,24 +108,9 @@ pub fn estimate_covariances(
     points
         .par_iter()
         .map(|p| {
-            let nb = match cfg.radius {
-                Some(r) => index.within(p, r as f32, cfg.max_neighbors),
-                None => index.knn(p, cfg.max_neighbors),
-            };
-            let nb = if nb.len() < 3 { index.knn(p, 3) } else { nb };
-            if nb.len() < 3 {
+            let Some(c) = neighbourhood_covariance(points, index, p, cfg) else {
                 return ([1.0, 0.0, 0.0, 1.0, 0.0, 1.0], [0.0, 0.0, 1.0]);
-            }
-            let mut mean = Vector3::zeros();
-            for &(i, _) in &nb {
-                mean += to_v64(&points[i]);
-            }
-            mean /= nb.len() as f64;
-            let mut c = Matrix3::zeros();
-            for &(i, _) in &nb {
-                let d = to_v64(&points[i]) - mean;
-                c += d * d.transpose();
-            }
+            };
             let (n, _) = normal_from_covariance(&c);
             let eig = SymmetricEigen::new(c);
             let top = eig.eigenvalues.iter().fold(0f64, |a, &b| a.max(b));
