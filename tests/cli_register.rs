@@ -6,19 +6,6 @@ use depthcal::geometry::transform::{isometry_from_rows, pose_error, random_isome
 use depthcal::geometry::Rng;
 use depthcal::PointCloud;
 use std::path::Path;
-use std::process::Command;
-
-fn depthcal(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_depthcal"))
-        .args(args)
-        .output()
-        .expect("run depthcal");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 fn transform_of(json: &serde_json::Value) -> nalgebra::Isometry3<f64> {
     let m: Vec<f64> = json["transform"]

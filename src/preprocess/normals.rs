@@ -56,11 +56,9 @@ pub fn estimate_normals_with_curvature(
 ) -> (Vec<[f32; 3]>, Vec<f32>) {
     points
         .par_iter()
-        .map(|p| {
-            match neighbourhood_covariance(points, index, p, cfg) {
-                Some(c) => normal_from_covariance(&c),
-                None => ([0.0, 0.0, 1.0], 0.0),
-            }
+        .map(|p| match neighbourhood_covariance(points, index, p, cfg) {
+            Some(c) => normal_from_covariance(&c),
+            None => ([0.0, 0.0, 1.0], 0.0),
         })
         .unzip()
 }
