@@ -41,7 +41,7 @@ pub struct Args {
     /// cell.toml and its pose in ground_truth.json (square edge from --square, default 0.03 m).
     #[command(flatten)]
     pub board: super::vision_args::BoardArgs,
-    /// A JSON file with any fields of SimConfig (see docs/simulate.md); the flags above override it.
+    /// A JSON file with any fields of SimConfig (see the README's `depthcal simulate` section); the flags above override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Write into a non-empty directory, replacing files of the same names.

@@ -47,7 +47,7 @@ pub struct SimConfig {
     /// An explicit noise model (overrides `noise_level`).
     pub noise: Option<NoiseConfig>,
     /// How much of the scene both robots see, 0–1 (default 0.7): the fraction of the surface each robot's
-    /// views see that the other robot's views also see (2 cm voxels, mean of both robots). The simulator
+    /// views see that the other robot's views also see (1 cm voxels, mean of both robots). The simulator
     /// places the views to meet it: a view spread from 0 (each robot looks at its own side of the workspace,
     /// close and steep, within ±25° of azimuth) to 1 (both circle the table at ±145°, from the whole distance
     /// and elevation ranges) is chosen by bisection on a sparse ray cast. Where the scene cannot reach the
@@ -614,7 +614,7 @@ impl SimCell {
         m
     }
 
-    /// The ground truth: `T_base1_base2`, and every other true transform and setting (see `docs/simulate.md`).
+    /// The ground truth: `T_base1_base2`, and every other true transform and setting (see the README's `depthcal simulate` section).
     pub fn ground_truth(&self) -> GroundTruth {
         use serde_json::{json, Value};
         let nested = |t: &Isometry3<f64>| serde_json::to_value(isometry_to_nested(t)).unwrap();
