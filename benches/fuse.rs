@@ -110,5 +110,49 @@ fn bench(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, bench);
+/// The cell stages of `calibrate` on the demo cell: fusing one robot as `calibrate` does (surface
+/// projection, depth views) and the free-space test of one hypothesis.
+fn cell(c: &mut Criterion) {
+    use depthcal::calibration::robot_to_robot::CalibrateConfig;
+    use depthcal::calibration::visibility::{free_space_violation, VisibilityConfig};
+    use depthcal::cell::{Cell, GroundTruth};
+    use depthcal::fusion::fuse_robot;
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("clouds/demo-cell");
+    let cell = Cell::open(&dir).unwrap();
+    let truth = GroundTruth::read(&dir)
+        .unwrap()
+        .and_then(|g| g.t_base1_base2)
+        .unwrap();
+    let fcfg = CalibrateConfig::default().fuse;
+    let mut g = c.benchmark_group("demo_cell");
+    g.sample_size(10);
+    g.bench_function("fuse_robot_as_calibrate", |b| {
+        b.iter(|| {
+            black_box(
+                fuse_robot(&cell.robots[0], &fcfg, &|_| {})
+                    .unwrap()
+                    .cloud
+                    .len(),
+            )
+        })
+    });
+    let a = fuse_robot(&cell.robots[0], &fcfg, &|_| {}).unwrap();
+    let o = fuse_robot(&cell.robots[1], &fcfg, &|_| {}).unwrap();
+    let vcfg = VisibilityConfig::default();
+    g.bench_function("free_space_violation", |b| {
+        b.iter(|| {
+            black_box(free_space_violation(
+                &a.cloud.points,
+                &a.views,
+                &o.cloud.points,
+                &o.views,
+                &truth,
+                &vcfg,
+            ))
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench, cell);
 criterion_main!(benches);

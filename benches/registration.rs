@@ -11,8 +11,9 @@ use depthcal::preprocess::normals::{estimate_normals, orient, NormalConfig, Orie
 use depthcal::preprocess::scale::{estimate_spacing, voxel_for_target};
 use depthcal::preprocess::voxel::voxel_downsample;
 use depthcal::registration::correspondence::{match_features, MatchConfig};
+use depthcal::registration::verify::{verify_candidates, VerifyConfig};
 use depthcal::registration::{
-    icp, ransac, register, IcpCloud, IcpConfig, RansacConfig, RegisterConfig,
+    icp, ransac, register, IcpCloud, IcpConfig, PoseConstraint, RansacConfig, RegisterConfig,
 };
 use depthcal::PointCloud;
 use nalgebra::Isometry3;
@@ -107,9 +108,32 @@ fn stages(c: &mut Criterion) {
         g.bench_function("ransac", |b| {
             b.iter(|| black_box(ransac(&sd.points, &td.points, &ti, &corr, &rcfg).unwrap()))
         });
-        let init = ransac(&sd.points, &td.points, &ti, &corr, &rcfg)
-            .unwrap()
-            .transform;
+        let found = ransac(&sd.points, &td.points, &ti, &corr, &rcfg).unwrap();
+        let init = found.transform;
+        // Verification of RANSAC's best distinct hypotheses (short ICP + alignment score each).
+        let vcfg = VerifyConfig::default();
+        let candidates: Vec<Isometry3<f64>> = found
+            .candidates
+            .iter()
+            .take(vcfg.max_candidates)
+            .map(|c| c.2)
+            .collect();
+        g.bench_function("verify", |b| {
+            b.iter(|| {
+                black_box(verify_candidates(
+                    &sd.points,
+                    &sn,
+                    &td.points,
+                    &tn,
+                    &ti,
+                    &candidates,
+                    v,
+                    &PoseConstraint::default(),
+                    None,
+                    &vcfg,
+                ))
+            })
+        });
         let icfg = IcpConfig {
             max_correspondence_distance: 3.0 * v,
             translation_tolerance: 1e-3 * v,
@@ -128,7 +152,6 @@ fn stages(c: &mut Criterion) {
         g.bench_function("register_total", |b| {
             b.iter(|| black_box(register(&src, &tgt, None, &RegisterConfig::default()).unwrap()))
         });
-        let _ = Isometry3::<f64>::identity();
         g.finish();
     }
 }
