@@ -403,23 +403,7 @@ fn kuka(k: usize) -> KukaPose {
 }
 
 fn write_pose_file(path: &Path, ids: &[String], times: Option<&[f64]>, first_k: usize) {
-    let mut s = String::from("frame,");
-    if times.is_some() {
-        s.push_str("t_s,");
-    }
-    s.push_str("x_mm,y_mm,z_mm,a_deg,b_deg,c_deg\n");
-    for (i, id) in ids.iter().enumerate() {
-        let p = kuka(first_k + i);
-        s.push_str(id);
-        if let Some(t) = times {
-            s.push_str(&format!(",{:.9}", t[i]));
-        }
-        s.push_str(&format!(
-            ",{},{},{},{},{},{}\n",
-            p.x_mm, p.y_mm, p.z_mm, p.a_deg, p.b_deg, p.c_deg
-        ));
-    }
-    std::fs::write(path, s).unwrap();
+    common::write_kuka_pose_file(path, ids, times, |i| kuka(first_k + i));
 }
 
 fn s(p: &Path) -> &str {

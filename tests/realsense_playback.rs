@@ -105,24 +105,8 @@ fn kuka(i: usize) -> KukaPose {
 
 /// A KUKA pose file with rows `p00..`, optionally with t_s.
 fn pose_file(path: &Path, n: usize, times: Option<&[f64]>) -> Vec<String> {
-    let mut text = String::from("frame,");
-    if times.is_some() {
-        text.push_str("t_s,");
-    }
-    text.push_str("x_mm,y_mm,z_mm,a_deg,b_deg,c_deg\n");
     let ids: Vec<String> = (0..n).map(|i| format!("p{i:02}")).collect();
-    for (i, id) in ids.iter().enumerate() {
-        let k = kuka(i);
-        text.push_str(id);
-        if let Some(t) = times {
-            text.push_str(&format!(",{}", t[i]));
-        }
-        text.push_str(&format!(
-            ",{},{},{},{},{},{}\n",
-            k.x_mm, k.y_mm, k.z_mm, k.a_deg, k.b_deg, k.c_deg
-        ));
-    }
-    std::fs::write(path, text).unwrap();
+    common::write_kuka_pose_file(path, &ids, times, kuka);
     ids
 }
 

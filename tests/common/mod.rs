@@ -112,3 +112,30 @@ pub fn listing(dir: &std::path::Path) -> Vec<(PathBuf, Vec<u8>)> {
     out.sort();
     out
 }
+
+/// Writes a KUKA pose file (`frame[,t_s],x_mm,...,c_deg`) with one row per id: the pose `pose(i)` and, when
+/// given, the time `times[i]` (seconds).
+pub fn write_kuka_pose_file(
+    path: &std::path::Path,
+    ids: &[String],
+    times: Option<&[f64]>,
+    pose: impl Fn(usize) -> depthcal::geometry::pose::KukaPose,
+) {
+    let mut s = String::from("frame,");
+    if times.is_some() {
+        s.push_str("t_s,");
+    }
+    s.push_str("x_mm,y_mm,z_mm,a_deg,b_deg,c_deg\n");
+    for (i, id) in ids.iter().enumerate() {
+        let p = pose(i);
+        s.push_str(id);
+        if let Some(t) = times {
+            s.push_str(&format!(",{:.9}", t[i]));
+        }
+        s.push_str(&format!(
+            ",{},{},{},{},{},{}\n",
+            p.x_mm, p.y_mm, p.z_mm, p.a_deg, p.b_deg, p.c_deg
+        ));
+    }
+    std::fs::write(path, s).unwrap();
+}
