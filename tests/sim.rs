@@ -23,6 +23,7 @@ fn plain() -> Appearance {
         albedo: [[0.8, 0.2, 0.2], [0.2, 0.2, 0.8]],
         checker_m: 0.02,
         pattern_seed: 1,
+        texture: false,
     }
 }
 
@@ -562,4 +563,88 @@ fn overlap_setting_sets_the_shared_fraction_of_the_scene() {
         assert!(mean > last, "the shared fraction grows with the setting");
         last = mean;
     }
+}
+
+#[test]
+fn markers_print_their_codes_in_the_colour_image_and_texture_leaves_depth_alone() {
+    use depthcal::sim::{marker_code, SimMarkersConfig};
+    let base = SimConfig {
+        seed: 5,
+        frames: 4,
+        overlap: 1.0,
+        noise_level: NoiseLevel::None,
+        ..Default::default()
+    };
+    let mut cfg = base.clone();
+    cfg.scene.markers = Some(SimMarkersConfig {
+        ids: vec![3, 9],
+        ..Default::default()
+    });
+    cfg.scene.textured = true;
+    let cell = SimCell::generate(&cfg).unwrap();
+    let markers = cell.scene.markers.as_ref().unwrap();
+    let gt = cell.ground_truth();
+    let list = gt.extra["markers"]["markers"].as_array().unwrap();
+    assert_eq!(list.len(), 2);
+    assert_eq!(gt.extra["markers"]["dictionary"], "4x4_50");
+    assert_eq!(
+        cell.manifest().extra["markers"]["size_m"].as_float(),
+        Some(0.08)
+    );
+    // In every frame, the centre of each visible code cell has the code's colour and the border is black.
+    let mut checked = 0;
+    for k in 0..cfg.frames {
+        let f = cell.render(0, k).unwrap();
+        let rgb = f.color.as_ref().unwrap();
+        let t_cam_world = cell.robots[0].t_world_cam(k).inverse();
+        let intr = &cell.robots[0].camera.intrinsics;
+        for m in &markers.markers {
+            let (n, code) = marker_code("4x4_50", m.id).unwrap();
+            let cell_m = 0.08 / (n + 2) as f64;
+            for r in 0..n + 2 {
+                for c in 0..n + 2 {
+                    let x = -0.04 + (c as f64 + 0.5) * cell_m;
+                    let y = 0.04 - (r as f64 + 0.5) * cell_m;
+                    let p = t_cam_world * m.t_world_marker * Point3::new(x, y, 0.0);
+                    if p.z <= 0.0 {
+                        continue;
+                    }
+                    let [u, v] = intr.project([p.x, p.y, p.z]);
+                    // Cells under 6 pixels across mix with their neighbours through the blur.
+                    let q = t_cam_world * m.t_world_marker * Point3::new(x + cell_m, y, 0.0);
+                    let [u2, v2] = intr.project([q.x, q.y, q.z]);
+                    if (u2 - u).hypot(v2 - v) < 6.0 {
+                        continue;
+                    }
+                    let (u, v) = (u.round() as i64, v.round() as i64);
+                    if u < 0 || v < 0 || u >= intr.width as i64 || v >= intr.height as i64 {
+                        continue;
+                    }
+                    let idx = (v as usize * intr.width as usize + u as usize) * 3;
+                    // Only where the cell is seen (not behind an object): the depth there is the table's.
+                    let z = f.ideal_z_m[v as usize * intr.width as usize + u as usize] as f64;
+                    if (z - p.z).abs() > 0.002 {
+                        continue;
+                    }
+                    let border = r == 0 || c == 0 || r == n + 1 || c == n + 1;
+                    let white = !border && (code >> (n * n - 1 - ((r - 1) * n + (c - 1)))) & 1 == 1;
+                    let g = rgb.data[idx + 1];
+                    assert!(
+                        if white { g > 150 } else { g < 100 },
+                        "frame {k} marker {} cell {r},{c}: green {g}",
+                        m.id
+                    );
+                    checked += 1;
+                }
+            }
+        }
+    }
+    assert!(checked > 100, "{checked} cells checked");
+    // The texture is colour only: the same scene untextured has the same depth, other colours.
+    let mut untextured = cfg.clone();
+    untextured.scene.textured = false;
+    let plain = SimCell::generate(&untextured).unwrap();
+    let (a, b) = (plain.render(1, 2).unwrap(), cell.render(1, 2).unwrap());
+    assert_eq!(a.depth, b.depth);
+    assert_ne!(a.color.unwrap().data, b.color.unwrap().data);
 }

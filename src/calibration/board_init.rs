@@ -134,6 +134,9 @@ impl Initializer for CheckerboardInitializer {
     fn name(&self) -> &str {
         "checkerboard"
     }
+    fn needs_clouds(&self) -> bool {
+        false
+    }
     fn initialize(&self, _input: &InitializerInput) -> Result<InitialGuess> {
         let (transform, sigma_rotation_deg, sigma_translation_m) = self.estimate();
         let side = |b: &BoardInBase| {

@@ -9,7 +9,7 @@ use crate::calibration::visibility::{
 use crate::error::Result;
 use crate::fusion::FusedCloud;
 use crate::registration::{register_with_prior, HypothesisPrior, PoseConstraint, RegisterConfig};
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Matrix6, Vector6};
 
 /// What an initialiser gets to work with: both robots' fused clouds in their own base frames.
 pub struct InitializerInput<'a> {
@@ -36,12 +36,26 @@ pub struct InitialGuess {
     pub detail: String,
 }
 
+impl InitialGuess {
+    /// A diagonal covariance of `[rx, ry, rz (rad), tx, ty, tz (m)]` from the stated 1-σ values.
+    pub fn covariance(&self) -> Matrix6<f64> {
+        let r = self.sigma_rotation_deg.to_radians().powi(2);
+        let t = self.sigma_translation_m.powi(2);
+        Matrix6::from_diagonal(&Vector6::new(r, r, r, t, t, t))
+    }
+}
+
 /// A way to obtain an initial `T_base1_base2`.
 pub trait Initializer {
     /// The method's name as the command line spells it (`depth`, `guess`, ...).
     fn name(&self) -> &str;
     /// Computes the initial estimate.
     fn initialize(&self, input: &InitializerInput) -> Result<InitialGuess>;
+    /// Whether it uses the fused clouds of [`InitializerInput`] (default true); those that do not can run
+    /// without fusing (`calibrate --no-refine`), and then get empty clouds.
+    fn needs_clouds(&self) -> bool {
+        true
+    }
 }
 
 /// Depth only: FPFH features, RANSAC under the priors, verified on the clouds (the default).
@@ -147,6 +161,9 @@ pub struct UserGuess {
 impl Initializer for UserGuess {
     fn name(&self) -> &str {
         "guess"
+    }
+    fn needs_clouds(&self) -> bool {
+        false
     }
     fn initialize(&self, _input: &InitializerInput) -> Result<InitialGuess> {
         Ok(InitialGuess {

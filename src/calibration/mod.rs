@@ -5,8 +5,10 @@
 
 pub mod average;
 pub mod board_init;
+pub mod feature_init;
 pub mod handeye;
 pub mod initializer;
+pub mod marker_init;
 pub mod priors;
 pub mod robot_to_robot;
 pub mod visibility;

@@ -31,6 +31,10 @@ pub struct CalibrateConfig {
     pub use_priors: bool,
     /// Seed of every randomised step.
     pub seed: u64,
+    /// The marker method's settings (`--method marker`).
+    pub marker: crate::calibration::marker_init::MarkerMethodConfig,
+    /// The 2D-feature method's settings (`--method features`).
+    pub features: crate::calibration::feature_init::FeatureMethodConfig,
 }
 
 impl Default for CalibrateConfig {
@@ -76,6 +80,8 @@ impl Default for CalibrateConfig {
             },
             use_priors: true,
             seed: 0,
+            marker: Default::default(),
+            features: Default::default(),
         }
     }
 }
@@ -95,6 +101,9 @@ pub struct Calibration {
     pub initial: InitialGuess,
     /// Initialiser name.
     pub method: String,
+    /// Trimmed robust ICP refined the initial estimate (false with `--no-refine`: then the quality
+    /// figures below are NaN).
+    pub refined: bool,
     /// Fraction of the other robot's points with a reference point within the final correspondence distance.
     pub fitness: f64,
     /// RMS distance of those pairs (m).
@@ -138,6 +147,40 @@ pub fn robot_pair(cell: &Cell) -> Result<(&CellRobot, &CellRobot)> {
     Ok((reference, other))
 }
 
+/// Both robots' fused clouds and the cell's priors: what [`refine_cell`] and the initialisers work on.
+/// Fuse once with [`fuse_cell`] to compare several initialisers on the same clouds.
+#[derive(Clone, Debug)]
+pub struct FusedCell {
+    /// The reference robot's fused cloud (base1 frame, metres).
+    pub reference: FusedCloud,
+    /// The other robot's fused cloud (base2 frame, metres).
+    pub other: FusedCloud,
+    /// The priors used (empty when `use_priors` is off).
+    pub priors: CellPriors,
+    /// Wall time of the fusion, milliseconds.
+    pub fuse_ms: f64,
+}
+
+/// Fuses both robots' frames in their own base frames (in parallel), and reads the priors.
+pub fn fuse_cell(cell: &Cell, cfg: &CalibrateConfig) -> Result<FusedCell> {
+    let t0 = Instant::now();
+    let (reference, other) = robot_pair(cell)?;
+    let priors = if cfg.use_priors {
+        CellPriors::from_manifest_extra(&cell.manifest.extra, &cell.dir.join("cell.toml"))?
+    } else {
+        CellPriors::default()
+    };
+    // Both robots at once: each fusion has sequential parts (index builds, voxel merges).
+    let fuse = |r: &CellRobot| -> Result<FusedCloud> { fuse_robot(r, &cfg.fuse, &|_| {}) };
+    let (ref_cloud, other_cloud) = rayon::join(|| fuse(reference), || fuse(other));
+    Ok(FusedCell {
+        reference: ref_cloud?,
+        other: other_cloud?,
+        priors,
+        fuse_ms: t0.elapsed().as_secs_f64() * 1e3,
+    })
+}
+
 /// Calibrates the cell: `T_base1_base2` between the reference robot and the other robot.
 ///
 /// `progress` is called with a stage description as each stage starts.
@@ -148,7 +191,60 @@ pub fn calibrate(
     progress: &mut dyn FnMut(&str),
 ) -> Result<Calibration> {
     let (reference, other) = robot_pair(cell)?;
+    progress(&format!(
+        "fusing {} frames of {} and {} of {}",
+        reference.frames.len(),
+        reference.name,
+        other.frames.len(),
+        other.name
+    ));
+    let fused = fuse_cell(cell, cfg)?;
+    refine_cell(cell, &fused, initializer, cfg, true, progress)
+}
+
+/// The initialiser's estimate alone, without fusing or refining (`calibrate --no-refine`): for initialisers
+/// that do not need the clouds ([`Initializer::needs_clouds`]); the others get the fused clouds.
+pub fn initialize_only(
+    cell: &Cell,
+    initializer: &dyn Initializer,
+    cfg: &CalibrateConfig,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Calibration> {
+    let fused = if initializer.needs_clouds() {
+        progress("fusing both robots' frames");
+        fuse_cell(cell, cfg)?
+    } else {
+        let priors = if cfg.use_priors {
+            CellPriors::from_manifest_extra(&cell.manifest.extra, &cell.dir.join("cell.toml"))?
+        } else {
+            CellPriors::default()
+        };
+        FusedCell {
+            reference: FusedCloud::default(),
+            other: FusedCloud::default(),
+            priors,
+            fuse_ms: 0.0,
+        }
+    };
+    refine_cell(cell, &fused, initializer, cfg, false, progress)
+}
+
+/// Runs `initializer` on the fused cell and, when `refine` is set, refines its estimate with trimmed robust
+/// ICP; without refinement the result is the initial estimate with a covariance from its stated 1-σ and
+/// no cloud quality figures (NaN).
+pub fn refine_cell(
+    cell: &Cell,
+    fused: &FusedCell,
+    initializer: &dyn Initializer,
+    cfg: &CalibrateConfig,
+    refine: bool,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Calibration> {
+    let (reference, other) = robot_pair(cell)?;
     let mut timings = Vec::new();
+    if fused.fuse_ms > 0.0 {
+        timings.push(("fuse".to_string(), fused.fuse_ms));
+    }
     let mut lap = {
         let mut t = Instant::now();
         move |name: &str, timings: &mut Vec<(String, f64)>| {
@@ -157,67 +253,74 @@ pub fn calibrate(
             t = now;
         }
     };
-    let priors = if cfg.use_priors {
-        CellPriors::from_manifest_extra(&cell.manifest.extra, &cell.dir.join("cell.toml"))?
-    } else {
-        CellPriors::default()
-    };
-    let constraint = priors.constraint();
-    progress(&format!(
-        "fusing {} frames of {} and {} of {}",
-        reference.frames.len(),
-        reference.name,
-        other.frames.len(),
-        other.name
-    ));
-    // Both robots at once: each fusion has sequential parts (index builds, voxel merges).
-    let fuse = |r: &CellRobot| -> Result<FusedCloud> { fuse_robot(r, &cfg.fuse, &|_| {}) };
-    let (ref_cloud, other_cloud) = rayon::join(|| fuse(reference), || fuse(other));
-    let (ref_cloud, other_cloud) = (ref_cloud?, other_cloud?);
-    lap("fuse", &mut timings);
+    let constraint = fused.priors.constraint();
+    let (ref_cloud, other_cloud) = (&fused.reference, &fused.other);
     progress(&format!("initialising ({})", initializer.name()));
     let initial = initializer.initialize(&InitializerInput {
-        reference: &ref_cloud,
-        other: &other_cloud,
+        reference: ref_cloud,
+        other: other_cloud,
         constraint: &constraint,
         seed: cfg.seed,
     })?;
     lap("initialize", &mut timings);
+    let truth = cell.ground_truth()?.and_then(|g| g.t_base1_base2);
+    let mut out = Calibration {
+        reference: reference.name.clone(),
+        other: other.name.clone(),
+        transform: initial.transform,
+        covariance: initial.covariance(),
+        method: initializer.name().to_string(),
+        refined: false,
+        fitness: f64::NAN,
+        inlier_rmse: f64::NAN,
+        overlap: f64::NAN,
+        converged: false,
+        degeneracy: Degeneracy {
+            condition: f64::NAN,
+            weak: Vec::new(),
+        },
+        priors_used: fused.priors.describe(),
+        fused_points: [ref_cloud.cloud.len(), other_cloud.cloud.len()],
+        frames: [reference.frames.len(), other.frames.len()],
+        error_vs_truth: truth.map(|t| pose_error(&initial.transform, &t)),
+        initial_error_vs_truth: truth.map(|t| pose_error(&initial.transform, &t)),
+        initial,
+        timings_ms: timings,
+        warnings: Vec::new(),
+    };
+    if !refine {
+        if !constraint.is_empty() && !constraint.accepts(&out.transform) {
+            out.warnings.push(
+                "the initial estimate violates the cell's priors (check [priors] in cell.toml)"
+                    .into(),
+            );
+        }
+        return Ok(out);
+    }
     progress("refining (trimmed robust ICP)");
     let mut rcfg = cfg.register.clone();
     rcfg.seed = cfg.seed;
     let reg = register(
         &other_cloud.cloud,
         &ref_cloud.cloud,
-        Some(&initial.transform),
+        Some(&out.initial.transform),
         &rcfg,
     )?;
-    lap("refine", &mut timings);
-    let mut warnings = reg.warnings.clone();
+    lap("refine", &mut out.timings_ms);
+    out.warnings = reg.warnings.clone();
     if !constraint.is_empty() && !constraint.accepts(&reg.transform) {
-        warnings.push(
+        out.warnings.push(
             "the refined transform violates the cell's priors (check [priors] in cell.toml)".into(),
         );
     }
-    let truth = cell.ground_truth()?.and_then(|g| g.t_base1_base2);
-    Ok(Calibration {
-        reference: reference.name.clone(),
-        other: other.name.clone(),
-        transform: reg.transform,
-        covariance: reg.covariance,
-        method: initializer.name().to_string(),
-        fitness: reg.fitness,
-        inlier_rmse: reg.inlier_rmse,
-        overlap: reg.overlap,
-        converged: reg.converged,
-        degeneracy: reg.degeneracy,
-        priors_used: priors.describe(),
-        fused_points: [ref_cloud.cloud.len(), other_cloud.cloud.len()],
-        frames: [reference.frames.len(), other.frames.len()],
-        error_vs_truth: truth.map(|t| pose_error(&reg.transform, &t)),
-        initial_error_vs_truth: truth.map(|t| pose_error(&initial.transform, &t)),
-        initial,
-        timings_ms: timings,
-        warnings,
-    })
+    out.transform = reg.transform;
+    out.covariance = reg.covariance;
+    out.refined = true;
+    out.fitness = reg.fitness;
+    out.inlier_rmse = reg.inlier_rmse;
+    out.overlap = reg.overlap;
+    out.converged = reg.converged;
+    out.degeneracy = reg.degeneracy;
+    out.error_vs_truth = truth.map(|t| pose_error(&reg.transform, &t));
+    Ok(out)
 }

@@ -1,28 +1,14 @@
 //! `depthcal calibrate CELL_DIR`: robot-to-robot calibration of a cell dataset.
 
+use super::methods::{build, Method, MethodInputs};
 use super::output::{matrix4_json, matrix4_text, matrix6_json, spinner, timings_json};
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
-use depthcal::calibration::board_init::checkerboard_initializer;
-use depthcal::calibration::initializer::{GlobalRegistration, Initializer, UserGuess};
-use depthcal::calibration::robot_to_robot::{calibrate, CalibrateConfig};
+use depthcal::calibration::robot_to_robot::{calibrate, initialize_only, CalibrateConfig};
 use depthcal::cell::Cell;
 use depthcal::geometry::pose::{isometry_to_xyzquat, KukaPose};
-use depthcal::io::read_matrix_file;
 use std::path::PathBuf;
 use std::time::Instant;
-
-/// Initialisation methods.
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
-pub enum Method {
-    /// Depth only: FPFH + RANSAC under the cell's priors, then trimmed robust ICP.
-    Depth,
-    /// Start from `--init` and refine with trimmed robust ICP.
-    Guess,
-    /// Both robots' board poses (colour images of the cell's [board], needs the `vision` feature; or
-    /// --board-pose), T_base1_board · T_base2_board⁻¹, then trimmed robust ICP.
-    Checkerboard,
-}
 
 /// Arguments of `depthcal calibrate`.
 #[derive(ClapArgs)]
@@ -39,6 +25,13 @@ pub struct Args {
     /// as ROBOT=FILE (repeatable); robots without one have the board found in their colour images.
     #[arg(long, value_name = "ROBOT=FILE", value_parser = parse_board_pose)]
     board_pose: Vec<(String, PathBuf)>,
+    /// Report the initialiser's estimate without refining it with trimmed ICP (image methods then do not
+    /// fuse the clouds at all).
+    #[arg(long)]
+    no_refine: bool,
+    /// Keypoint detector of --method features: sift (default), orb or akaze.
+    #[arg(long, value_name = "NAME")]
+    detector: Option<String>,
     /// Print one JSON object on stdout.
     #[arg(long)]
     json: bool,
@@ -71,39 +64,45 @@ pub fn run(a: Args) -> Result<()> {
         super::output::read_config(a.config.as_deref(), "calibrate configuration")?;
     cfg.seed = a.seed;
     cfg.use_priors = !a.no_priors;
-    let cell = Cell::open(&a.cell)?;
-    let mut board_ms = None;
-    let init: Box<dyn Initializer> = match (&a.init, a.method) {
-        (Some(p), _) => Box::new(UserGuess {
-            transform: read_matrix_file(p)?,
-            source: p.display().to_string(),
-        }),
-        (None, Method::Guess) => anyhow::bail!("--method guess needs --init FILE"),
-        (None, Method::Depth) => Box::new(GlobalRegistration {
-            config: cfg.register.clone(),
-            ..GlobalRegistration::default()
-        }),
-        (None, Method::Checkerboard) => {
-            let t0 = Instant::now();
-            let (init, warnings) = checkerboard_initializer(&cell, &a.board_pose)?;
-            board_ms = Some(t0.elapsed().as_secs_f64() * 1e3);
-            for w in warnings {
-                eprintln!("warning: {w}");
-            }
-            Box::new(init)
+    if let Some(d) = &a.detector {
+        if a.method != Method::Features {
+            anyhow::bail!("--detector is for --method features");
         }
-    };
-    if !a.board_pose.is_empty() && !matches!(a.method, Method::Checkerboard) {
+        cfg.features.detector = d.clone();
+    }
+    let cell = Cell::open(&a.cell)?;
+    if !a.board_pose.is_empty() && a.method != Method::Checkerboard {
         anyhow::bail!("--board-pose is for --method checkerboard");
     }
+    let method = if a.init.is_some() {
+        Method::Guess
+    } else {
+        a.method
+    };
+    let inputs = MethodInputs {
+        init: a.init.clone(),
+        board_pose: a.board_pose.clone(),
+    };
+    let (init, found_ms, warnings) = build(method, &cell, &inputs, &cfg)?;
+    for w in warnings {
+        eprintln!("warning: {w}");
+    }
     let pb = spinner("opening the cell");
-    let mut c = calibrate(&cell, init.as_ref(), &cfg, &mut |s| {
-        pb.set_message(s.to_string())
-    })
+    let mut progress = |s: &str| pb.set_message(s.to_string());
+    let mut c = if a.no_refine {
+        initialize_only(&cell, init.as_ref(), &cfg, &mut progress)
+    } else {
+        calibrate(&cell, init.as_ref(), &cfg, &mut progress)
+    }
     .with_context(|| format!("calibrating {}", a.cell.display()))?;
-    if let Some(ms) = board_ms {
-        // The board poses are found before the clouds are fused.
-        c.timings_ms.insert(0, ("board_poses".into(), ms));
+    if found_ms > 0.0 {
+        // The image targets are found before the clouds are fused.
+        let key = match method {
+            Method::Checkerboard => "board_poses",
+            Method::Marker => "marker_poses",
+            _ => "keypoints",
+        };
+        c.timings_ms.insert(0, (key.into(), found_ms));
     }
     pb.finish_and_clear();
     for w in &c.warnings {
@@ -143,6 +142,7 @@ pub fn run(a: Args) -> Result<()> {
             "fitness": c.fitness,
             "inlier_rmse": c.inlier_rmse,
             "overlap": c.overlap,
+            "refined": c.refined,
             "converged": c.converged,
             "degenerate": c.degeneracy.is_degenerate(),
             "degeneracy": c.degeneracy,
@@ -185,14 +185,20 @@ pub fn run(a: Args) -> Result<()> {
         sd[4] * 1e3,
         sd[5] * 1e3
     );
-    println!(
-        "quality         fitness {:.3}, inlier RMSE {:.2} mm, overlap {:.3}, converged {}, degenerate {}",
-        c.fitness,
-        c.inlier_rmse * 1e3,
-        c.overlap,
-        c.converged,
-        c.degeneracy.is_degenerate()
-    );
+    if c.refined {
+        println!(
+            "quality         fitness {:.3}, inlier RMSE {:.2} mm, overlap {:.3}, converged {}, degenerate {}",
+            c.fitness,
+            c.inlier_rmse * 1e3,
+            c.overlap,
+            c.converged,
+            c.degeneracy.is_degenerate()
+        );
+    } else {
+        println!(
+            "quality         not refined (--no-refine): the initialiser's estimate and its 1-sigma"
+        );
+    }
     println!(
         "priors          {}",
         if c.priors_used.is_empty() {
@@ -202,12 +208,36 @@ pub fn run(a: Args) -> Result<()> {
         }
     );
     println!("initial         {}", c.initial.detail);
-    if let (Some((r, tr)), Some((ri, ti))) = (c.error_vs_truth, c.initial_error_vs_truth) {
+    if c.refined {
+        // The initialiser's estimate and the refined one side by side.
+        let d = c.initial.transform.inverse() * c.transform;
+        let xi = isometry_to_xyzquat(&c.initial.transform);
         println!(
+            "initial -> refined  xyz {:.4} {:.4} {:.4} m -> {:.4} {:.4} {:.4} m; moved {:.3} deg / {:.2} mm \
+             (initial 1-sigma {:.3} deg / {:.2} mm)",
+            xi[0],
+            xi[1],
+            xi[2],
+            xq[0],
+            xq[1],
+            xq[2],
+            d.rotation.angle().to_degrees(),
+            d.translation.vector.norm() * 1e3,
+            c.initial.sigma_rotation_deg,
+            c.initial.sigma_translation_m * 1e3
+        );
+    }
+    match (c.error_vs_truth, c.initial_error_vs_truth) {
+        (Some((r, tr)), Some((ri, ti))) if c.refined => println!(
             "vs ground truth initial {ri:.3} deg / {:.2} mm  ->  refined {r:.4} deg / {:.3} mm",
             ti * 1e3,
             tr * 1e3
-        );
+        ),
+        (_, Some((ri, ti))) => println!(
+            "vs ground truth initial {ri:.4} deg / {:.3} mm (not refined)",
+            ti * 1e3
+        ),
+        _ => {}
     }
     let times: Vec<String> = c
         .timings_ms

@@ -4,11 +4,13 @@ use clap::{Parser, Subcommand};
 
 mod calibrate;
 mod capture;
+mod compare;
 mod convert;
 mod fuse;
 mod handeye;
 mod import;
 mod intrinsics;
+mod methods;
 mod output;
 mod register;
 mod simulate;
@@ -34,6 +36,8 @@ enum Command {
     Register(register::Args),
     /// Robot-to-robot calibration of a cell dataset: T_base1_base2 with its uncertainty.
     Calibrate(calibrate::Args),
+    /// Run every calibration method the cell's data allows and compare them in one table.
+    Compare(compare::Args),
     /// Fuse one robot's depth frames of a cell dataset into a cloud in its base frame.
     Fuse(fuse::Args),
     /// Convert a pose file between kuka (XYZ-ABC), matrix (4x4) and xyzquat formats.
@@ -77,6 +81,7 @@ pub fn run() -> i32 {
     let result = match cli.command {
         Command::Register(a) => register::run(a),
         Command::Calibrate(a) => calibrate::run(a),
+        Command::Compare(a) => compare::run(a),
         Command::Fuse(a) => fuse::run(a),
         Command::Convert(a) => convert::run(a),
         Command::Handeye(a) => handeye::run(a),

@@ -41,6 +41,19 @@ pub struct Args {
     /// cell.toml and its pose in ground_truth.json (square edge from --square, default 0.03 m).
     #[command(flatten)]
     pub board: super::vision_args::BoardArgs,
+    /// Put N square fiducial markers (ids 0..N) on the table near its centre, clear of objects and of the
+    /// board; written as [markers] in cell.toml and their poses in ground_truth.json.
+    #[arg(long, value_name = "N")]
+    pub markers: Option<u32>,
+    /// Marker dictionary for --markers (4x4_50, 5x5_100, 6x6_250, tag36h11; default 4x4_50).
+    #[arg(long, value_name = "NAME")]
+    pub marker_dict: Option<String>,
+    /// Marker black-square edge for --markers: metres or with a unit (default 0.08).
+    #[arg(long, value_name = "SIZE", value_parser = depthcal::cell::board::parse_length_m)]
+    pub marker_size: Option<f64>,
+    /// Give the objects and the table a distinctive texture (for the 2D-feature method).
+    #[arg(long)]
+    pub textured: bool,
     /// A JSON file with any fields of SimConfig (see the README's `depthcal simulate` section); the flags above override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
@@ -89,6 +102,22 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             b.square_m = sq;
         }
         cfg.scene.board = Some(b);
+    }
+    if a.markers.is_some() || a.marker_dict.is_some() || a.marker_size.is_some() {
+        let mut m = cfg.scene.markers.clone().unwrap_or_default();
+        if let Some(n) = a.markers {
+            m.ids = (0..n).collect();
+        }
+        if let Some(d) = &a.marker_dict {
+            m.dictionary = d.clone();
+        }
+        if let Some(s) = a.marker_size {
+            m.size_m = s;
+        }
+        cfg.scene.markers = Some(m);
+    }
+    if a.textured {
+        cfg.scene.textured = true;
     }
     if a.out_dir.exists() {
         if !a.out_dir.is_dir() {

@@ -1,6 +1,7 @@
 //! Geometry: the point cloud type, rigid transforms, pose errors, random numbers.
 
 pub mod cloud;
+pub mod plane;
 pub mod pose;
 pub mod rng;
 pub mod transform;

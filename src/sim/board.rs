@@ -185,9 +185,8 @@ impl SimBoard {
         })
     }
 
-    /// Mean albedo over the footprint of pixel `(u, v)` of a camera at `t_world_cam` (`supersample²` rays,
-    /// each intersected with the table plane), or `None` when the pixel centre's ray does not meet the sheet.
-    /// `table` gives the albedo of table points off the sheet (rays at the sheet's edge).
+    /// Mean albedo over the footprint of pixel `(u, v)` of a camera at `t_world_cam` (see
+    /// [`footprint_albedo`]), or `None` when the pixel centre's ray does not meet the sheet.
     pub fn pixel_albedo(
         &self,
         intr: &Intrinsics,
@@ -196,38 +195,62 @@ impl SimBoard {
         v: f64,
         table: &dyn Fn(f64, f64) -> f64,
     ) -> Option<f64> {
-        let o = t_world_cam.translation.vector;
-        let hit = |pu: f64, pv: f64| -> Option<(f64, f64)> {
-            let [x, y] = intr.pixel_ray([pu, pv]);
-            let d = t_world_cam.rotation * Vector3::new(x, y, 1.0);
-            if d.z >= -1e-12 || o.z <= 0.0 {
-                return None;
-            }
-            let t = -o.z / d.z;
-            Some((o.x + t * d.x, o.y + t * d.y))
-        };
-        let (cx, cy) = hit(u, v)?;
-        self.albedo_at(cx, cy)?;
-        let n = self.config.supersample.max(1);
-        let mut sum = 0.0;
-        let mut count = 0usize;
-        for j in 0..n {
-            for i in 0..n {
-                let du = (i as f64 + 0.5) / n as f64 - 0.5;
-                let dv = (j as f64 + 0.5) / n as f64 - 0.5;
-                if let Some((x, y)) = hit(u + du, v + dv) {
-                    sum += self.albedo_at(x, y).unwrap_or_else(|| table(x, y));
-                    count += 1;
-                }
-            }
-        }
-        (count > 0).then(|| sum / count as f64)
+        footprint_albedo(
+            intr,
+            t_world_cam,
+            u,
+            v,
+            self.config.supersample,
+            &|x, y| self.albedo_at(x, y),
+            table,
+        )
     }
 
     /// The `[board]` table of `cell.toml`.
     pub fn manifest_table(&self) -> toml::Value {
         self.board.to_toml()
     }
+}
+
+/// Mean albedo over the footprint of pixel `(u, v)` of a camera at `t_world_cam` on a print lying on the
+/// table top (`z = 0`): `supersample²` sub-pixel rays, each intersected with the table plane exactly. `print`
+/// gives the print's albedo at a table point (`None` off the print), `table` the table's. `None` when the
+/// pixel centre's ray does not meet the print.
+pub fn footprint_albedo(
+    intr: &Intrinsics,
+    t_world_cam: &Isometry3<f64>,
+    u: f64,
+    v: f64,
+    supersample: u32,
+    print: &dyn Fn(f64, f64) -> Option<f64>,
+    table: &dyn Fn(f64, f64) -> f64,
+) -> Option<f64> {
+    let o = t_world_cam.translation.vector;
+    let hit = |pu: f64, pv: f64| -> Option<(f64, f64)> {
+        let [x, y] = intr.pixel_ray([pu, pv]);
+        let d = t_world_cam.rotation * Vector3::new(x, y, 1.0);
+        if d.z >= -1e-12 || o.z <= 0.0 {
+            return None;
+        }
+        let t = -o.z / d.z;
+        Some((o.x + t * d.x, o.y + t * d.y))
+    };
+    let (cx, cy) = hit(u, v)?;
+    print(cx, cy)?;
+    let n = supersample.max(1);
+    let mut sum = 0.0;
+    let mut count = 0usize;
+    for j in 0..n {
+        for i in 0..n {
+            let du = (i as f64 + 0.5) / n as f64 - 0.5;
+            let dv = (j as f64 + 0.5) / n as f64 - 0.5;
+            if let Some((x, y)) = hit(u + du, v + dv) {
+                sum += print(x, y).unwrap_or_else(|| table(x, y));
+                count += 1;
+            }
+        }
+    }
+    (count > 0).then(|| sum / count as f64)
 }
 
 /// Separable Gaussian blur of an interleaved image with `channels` channels (edge pixels repeated).

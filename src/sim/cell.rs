@@ -611,6 +611,9 @@ impl SimCell {
         if let Some(b) = &self.scene.board {
             m.extra.insert("board".into(), b.manifest_table());
         }
+        if let Some(k) = &self.scene.markers {
+            m.extra.insert("markers".into(), k.manifest_table());
+        }
         m
     }
 
@@ -689,6 +692,34 @@ impl SimCell {
                        "T_world_board": nested(&b.t_world_board),
                        "T_base1_board": nested(&(t_b1_w * b.t_world_board)),
                        "T_base_board": in_bases}),
+            );
+        }
+        if let Some(k) = &self.scene.markers {
+            // Each marker's pose in the world, in base1 and in each robot's base.
+            let list: Vec<Value> = k
+                .markers
+                .iter()
+                .map(|m| {
+                    let in_bases: serde_json::Map<String, Value> = self
+                        .robots
+                        .iter()
+                        .map(|r| {
+                            (
+                                r.name.clone(),
+                                nested(&(r.t_world_base.inverse() * m.t_world_marker)),
+                            )
+                        })
+                        .collect();
+                    json!({"id": m.id,
+                           "T_world_marker": nested(&m.t_world_marker),
+                           "T_base1_marker": nested(&(t_b1_w * m.t_world_marker)),
+                           "T_base_marker": in_bases})
+                })
+                .collect();
+            extra.insert(
+                "markers".into(),
+                json!({"dictionary": k.manifest_table().get("dictionary").and_then(|d| d.as_str()),
+                       "size_m": k.config.size_m, "markers": list}),
             );
         }
         extra.insert("seed".into(), json!(self.config.seed));

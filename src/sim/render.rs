@@ -284,6 +284,9 @@ fn value_noise(seed: u64, p: Vector) -> f64 {
 
 /// Albedo of a surface point given in object coordinates.
 fn albedo(a: &Appearance, p: Vector) -> [f64; 3] {
+    if a.texture {
+        return textured_albedo(a, p);
+    }
     let c = a.checker_m;
     let q = p / c;
     let parity = (q.x.floor() as i64 + q.y.floor() as i64 + q.z.floor() as i64).rem_euclid(2);
@@ -291,6 +294,19 @@ fn albedo(a: &Appearance, p: Vector) -> [f64; 3] {
     let n = value_noise(a.pattern_seed, q * 2.3);
     let f = 0.6 + 0.7 * n;
     [base[0] as f64 * f, base[1] as f64 * f, base[2] as f64 * f]
+}
+
+/// The distinctive texture: value noise at 25, 11 and 5 mm, contrast-stretched between the two albedos
+/// (blobs of every size, no repetition: what keypoint detectors and descriptors need).
+fn textured_albedo(a: &Appearance, p: Vector) -> [f64; 3] {
+    let s = a.pattern_seed;
+    let n = 0.5 * value_noise(s, p / 0.025)
+        + 0.3 * value_noise(s ^ 0x7E37, p / 0.011)
+        + 0.2 * value_noise(s ^ 0x5A5A, p / 0.005);
+    let t = ((n - 0.32) / 0.36).clamp(0.0, 1.0);
+    let t = t * t * (3.0 - 2.0 * t);
+    let [c1, c2] = a.albedo;
+    [0, 1, 2].map(|k| c2[k] as f64 + t * (c1[k] as f64 - c2[k] as f64))
 }
 
 /// Shading of a hit; `grey` replaces the surface's albedo (the board's pixel coverage).
@@ -394,16 +410,27 @@ pub fn render_frame(
                 px.shadow = shadowed(scene, cam, &inv2, origin2, &rects2, p);
             }
             if with_color {
-                // The board on the table top: pixel coverage from the pixel centre's footprint.
-                let grey = match &scene.board {
-                    Some(b) if hit.surface == Surface::Table && hit.normal.z > 0.5 => {
-                        let table = |x: f64, y: f64| {
-                            let a = albedo(&scene.table_appearance, Vector::new(x, y, 0.0));
-                            0.299 * a[0] + 0.587 * a[1] + 0.114 * a[2]
-                        };
-                        b.pixel_albedo(intr, t_world_cam, u as f64, v as f64, &table)
-                    }
-                    _ => None,
+                // Prints on the table top (the board, the markers): pixel coverage from the pixel centre's
+                // footprint.
+                let on_top = hit.surface == Surface::Table && hit.normal.z > 0.5;
+                let table = |x: f64, y: f64| {
+                    let a = albedo(&scene.table_appearance, Vector::new(x, y, 0.0));
+                    0.299 * a[0] + 0.587 * a[1] + 0.114 * a[2]
+                };
+                let (uf, vf) = (u as f64, v as f64);
+                let grey = if on_top {
+                    scene
+                        .board
+                        .as_ref()
+                        .and_then(|b| b.pixel_albedo(intr, t_world_cam, uf, vf, &table))
+                        .or_else(|| {
+                            scene
+                                .markers
+                                .as_ref()
+                                .and_then(|m| m.pixel_albedo(intr, t_world_cam, uf, vf, &table))
+                        })
+                } else {
+                    None
                 };
                 px.rgb = shade(scene, &gamma, &hit, p, dir, grey);
             }
@@ -476,15 +503,18 @@ pub fn render_frame(
         let mut data = vec![0u8; w * h * 3];
         let color_seed = seed ^ 0xC010_0125_EED0_0002;
         let grain = if ideal_noise { 0.0 } else { 1.5 };
-        // Optics blur, in scenes with a board (the others render as before).
-        let blurred = scene
+        // Optics blur, in scenes with prints (the others render as before).
+        let sigma = scene
             .board
             .as_ref()
-            .filter(|b| b.config.blur_sigma_px > 0.0)
-            .map(|b| {
-                let rgb: Vec<u8> = pass1.iter().flat_map(|p| p.rgb).collect();
-                super::board::gaussian_blur(&rgb, w, h, 3, b.config.blur_sigma_px)
-            });
+            .map(|b| b.config.blur_sigma_px)
+            .into_iter()
+            .chain(scene.markers.as_ref().map(|m| m.config.blur_sigma_px))
+            .fold(0.0, f64::max);
+        let blurred = (sigma > 0.0).then(|| {
+            let rgb: Vec<u8> = pass1.iter().flat_map(|p| p.rgb).collect();
+            super::board::gaussian_blur(&rgb, w, h, 3, sigma)
+        });
         data.par_chunks_mut(w * 3).enumerate().for_each(|(v, row)| {
             for u in 0..w {
                 let px = &pass1[v * w + u];

@@ -8,6 +8,7 @@
 
 use super::board::{SimBoard, SimBoardConfig};
 use super::convert::{to_pose, to_vec};
+use super::marker::{SimMarkers, SimMarkersConfig};
 use super::mesh::{builtin_mesh, read_ply_mesh, MeshData, BUILTIN_MESHES};
 use crate::error::{Error, Result};
 use crate::geometry::Rng;
@@ -102,6 +103,9 @@ pub struct Appearance {
     pub checker_m: f64,
     /// Seed of the value-noise pattern.
     pub pattern_seed: u64,
+    /// A distinctive multi-scale texture of the two albedos instead of the checks (for 2D features).
+    #[serde(default)]
+    pub texture: bool,
 }
 
 /// One object of the scene.
@@ -141,6 +145,12 @@ pub struct SceneConfig {
     /// A printed checkerboard on the table top, kept clear of objects (default none; see
     /// [`crate::sim::board`]).
     pub board: Option<SimBoardConfig>,
+    /// Square fiducial markers on the table top, kept clear of the board and of objects (default none;
+    /// see [`crate::sim::marker`]).
+    pub markers: Option<SimMarkersConfig>,
+    /// Give the objects and the table a distinctive multi-scale texture (default false: two-colour
+    /// checks with a faint value noise), for the 2D-feature method.
+    pub textured: bool,
 }
 
 impl Default for SceneConfig {
@@ -162,6 +172,8 @@ impl Default for SceneConfig {
             floor_below_m: None,
             lying_cylinders: true,
             board: None,
+            markers: None,
+            textured: false,
         }
     }
 }
@@ -211,6 +223,9 @@ impl SceneConfig {
         }
         if let Some(b) = &self.board {
             b.validate()?;
+        }
+        if let Some(m) = &self.markers {
+            m.validate()?;
         }
         if let Some(f) = self.floor_below_m {
             if !(f.is_finite() && f > self.table_size_m[2]) {
@@ -464,6 +479,8 @@ pub struct Scene {
     pub table_appearance: Appearance,
     /// The checkerboard on the table, if any (colour image only).
     pub board: Option<SimBoard>,
+    /// The fiducial markers on the table, if any (colour image only).
+    pub markers: Option<SimMarkers>,
     /// Bodies: the table first, then the objects in order.
     pub(crate) bodies: Vec<Body>,
     /// Cast with parry's own ray casts (GJK for cylinders and cones) instead of the closed forms (tests).
@@ -548,7 +565,7 @@ fn geom_of(shape: &ObjectShape) -> Result<(Geom, Isometry3<f64>)> {
     })
 }
 
-fn random_appearance(rng: &mut Rng) -> Appearance {
+fn random_appearance(rng: &mut Rng, textured: bool) -> Appearance {
     // A saturated colour and a light or dark partner of a nearby hue.
     let hue = rng.uniform(0.0, 1.0);
     let c1 = hsv(hue, rng.uniform(0.45, 0.9), rng.uniform(0.55, 0.95));
@@ -561,6 +578,7 @@ fn random_appearance(rng: &mut Rng) -> Appearance {
         albedo: [c1, c2],
         checker_m: rng.uniform(0.012, 0.03),
         pattern_seed: rng.next_u64(),
+        texture: textured,
     }
 }
 
@@ -635,6 +653,7 @@ impl Scene {
             objects,
             table_appearance,
             board: None,
+            markers: None,
             bodies,
             use_parry: false,
         })
@@ -674,6 +693,7 @@ impl Scene {
             albedo: [[0.62, 0.55, 0.45], [0.35, 0.3, 0.25]],
             checker_m: 0.05,
             pattern_seed: rng.next_u64(),
+            texture: cfg.textured,
         };
         let start = if cfg.kinds.is_empty() {
             0
@@ -685,6 +705,14 @@ impl Scene {
         // Its own stream, so that scenes without a board are as before.
         let board = match &cfg.board {
             Some(b) => Some(SimBoard::place(b, &mut Rng::stream(seed, 0xB0A4D))?),
+            None => None,
+        };
+        let markers = match &cfg.markers {
+            Some(m) => Some(SimMarkers::place(
+                m,
+                &mut Rng::stream(seed, 0x3A4E5),
+                &|c, r| board.as_ref().is_some_and(|b| b.overlaps_disc(c, r)),
+            )?),
             None => None,
         };
         let mut objects = Vec::with_capacity(cfg.objects);
@@ -746,6 +774,9 @@ impl Scene {
                     || board
                         .as_ref()
                         .is_some_and(|b| b.overlaps_disc(c, fp + cfg.min_gap_m))
+                    || markers
+                        .as_ref()
+                        .is_some_and(|m| m.overlaps_disc(c, fp + cfg.min_gap_m))
                 {
                     continue;
                 }
@@ -775,7 +806,7 @@ impl Scene {
                 objects.push(SceneObject {
                     shape,
                     t_world_object,
-                    appearance: random_appearance(&mut rng),
+                    appearance: random_appearance(&mut rng, cfg.textured),
                 });
                 done = true;
                 break;
@@ -794,6 +825,7 @@ impl Scene {
             table_appearance,
         )?;
         scene.board = board;
+        scene.markers = markers;
         Ok(scene)
     }
 

@@ -14,8 +14,11 @@
 pub mod circles;
 pub mod corners;
 mod cv;
+pub mod feature_lift;
+pub mod frames;
 pub mod image;
 pub mod intrinsics;
+pub mod marker_sightings;
 pub mod observe;
 pub mod pnp;
 
