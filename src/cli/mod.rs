@@ -10,6 +10,7 @@ mod fuse;
 mod handeye;
 mod import;
 mod intrinsics;
+mod match_cmd;
 mod methods;
 mod output;
 mod register;
@@ -46,6 +47,8 @@ enum Command {
     Handeye(handeye::Args),
     /// Camera intrinsics from checkerboard images (Zhang's method; needs the `vision` feature).
     Intrinsics(intrinsics::Args),
+    /// Keypoint matches between two images and the homography between them (needs the `vision` feature).
+    Match(match_cmd::Args),
     /// Write a simulated two-robot cell dataset (depth, colour, poses) with ground truth.
     Simulate(simulate::Args),
     /// Take frames from a connected RealSense camera into a cell dataset (cargo feature `realsense`).
@@ -87,6 +90,7 @@ pub fn run() -> i32 {
         Command::Handeye(a) => handeye::run(a),
         Command::Simulate(a) => simulate::run(a),
         Command::Intrinsics(a) => intrinsics::run(a),
+        Command::Match(a) => match_cmd::run(a),
         Command::Capture(a) => capture::run(a),
         Command::Import(a) => import::run(a),
     };

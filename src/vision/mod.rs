@@ -1,7 +1,8 @@
 //! The image side of calibration (cargo feature `vision`): checkerboard inner corners with subpixel
 //! refinement ([`corners`]), intrinsic calibration by Zhang's method ([`intrinsics`]), the board pose in
 //! each camera by PnP ([`pnp`]), and the board seen by a whole set of images or by a cell's robots
-//! ([`observe`]).
+//! ([`observe`]); 2D keypoint features (SIFT, ORB, AKAZE), their matches and the homography between two
+//! views of a plane ([`features`]).
 //!
 //! OpenCV (through the `opencv` crate) does the image work; its types stay inside this module. The public
 //! API takes and returns nalgebra types, [`GreyImage`] and the crate's own [`Intrinsics`] and
@@ -15,6 +16,7 @@ pub mod circles;
 pub mod corners;
 mod cv;
 pub mod feature_lift;
+pub mod features;
 pub mod frames;
 pub mod image;
 pub mod intrinsics;
@@ -23,6 +25,11 @@ pub mod observe;
 pub mod pnp;
 
 pub use corners::{detect_checkerboard, BoardCorners, CornerConfig};
+pub use features::{
+    detect_features, detect_features_masked, fit_homography, knn_match, match_features,
+    transfer_error, Descriptors, FeatureConfig, FeatureKind, FeatureMatch, Features, Homography,
+    HomographyConfig, Keypoint,
+};
 pub use image::{read_grey_image, GreyImage};
 pub use intrinsics::{calibrate_intrinsics, IntrinsicCalibration, IntrinsicsConfig, ViewResidual};
 pub use observe::{
