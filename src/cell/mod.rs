@@ -19,7 +19,9 @@
 //! version does not know (e.g. `[priors]`) are kept and written back unchanged. See `docs/cell-format.md`.
 
 pub mod board;
+pub mod markers;
 pub use board::Checkerboard;
+pub use markers::MarkerDictionary;
 
 use crate::camera::depth::read_depth_png_header;
 use crate::camera::{read_depth_png, DepthImage, Intrinsics};

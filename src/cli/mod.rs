@@ -9,6 +9,7 @@ mod fuse;
 mod handeye;
 mod import;
 mod intrinsics;
+mod markers;
 mod output;
 mod register;
 mod simulate;
@@ -42,6 +43,8 @@ enum Command {
     Handeye(handeye::Args),
     /// Camera intrinsics from checkerboard images (Zhang's method; needs the `vision` feature).
     Intrinsics(intrinsics::Args),
+    /// Find ArUco / AprilTag markers in images: ids and sub-pixel corners (needs the `vision` feature).
+    Markers(markers::Args),
     /// Write a simulated two-robot cell dataset (depth, colour, poses) with ground truth.
     Simulate(simulate::Args),
     /// Take frames from a connected RealSense camera into a cell dataset (cargo feature `realsense`).
@@ -82,6 +85,7 @@ pub fn run() -> i32 {
         Command::Handeye(a) => handeye::run(a),
         Command::Simulate(a) => simulate::run(a),
         Command::Intrinsics(a) => intrinsics::run(a),
+        Command::Markers(a) => markers::run(a),
         Command::Capture(a) => capture::run(a),
         Command::Import(a) => import::run(a),
     };
