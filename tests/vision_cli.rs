@@ -21,6 +21,7 @@ fn run(args: &[&str]) -> (bool, String, String) {
 fn without_the_feature_the_commands_say_how_to_get_it() {
     for args in [
         vec!["intrinsics", "a.png", "--board", "9x6", "--square", "25mm"],
+        vec!["markers", "a.png", "--dict", "4x4_50"],
         vec![
             "handeye",
             "--robot-poses",
@@ -37,7 +38,7 @@ fn without_the_feature_the_commands_say_how_to_get_it() {
     ] {
         let (ok, _, err) = run(&args);
         assert!(!ok, "{args:?}");
-        if args[0] == "intrinsics" {
+        if args[0] != "handeye" {
             assert!(
                 err.contains("without the `vision` feature") && err.contains("--features vision"),
                 "{err}"

@@ -20,8 +20,10 @@
 
 pub mod board;
 pub mod fiducial;
+pub mod markers;
 pub use board::Checkerboard;
 pub use fiducial::MarkerTarget;
+pub use markers::MarkerDictionary;
 
 use crate::camera::depth::read_depth_png_header;
 use crate::camera::{read_depth_png, DepthImage, Intrinsics};

@@ -10,6 +10,7 @@ mod fuse;
 mod handeye;
 mod import;
 mod intrinsics;
+mod markers;
 mod match_cmd;
 mod methods;
 mod output;
@@ -49,6 +50,8 @@ enum Command {
     Intrinsics(intrinsics::Args),
     /// Keypoint matches between two images and the homography between them (needs the `vision` feature).
     Match(match_cmd::Args),
+    /// Find ArUco / AprilTag markers in images: ids and sub-pixel corners (needs the `vision` feature).
+    Markers(markers::Args),
     /// Write a simulated two-robot cell dataset (depth, colour, poses) with ground truth.
     Simulate(simulate::Args),
     /// Take frames from a connected RealSense camera into a cell dataset (cargo feature `realsense`).
@@ -91,6 +94,7 @@ pub fn run() -> i32 {
         Command::Simulate(a) => simulate::run(a),
         Command::Intrinsics(a) => intrinsics::run(a),
         Command::Match(a) => match_cmd::run(a),
+        Command::Markers(a) => markers::run(a),
         Command::Capture(a) => capture::run(a),
         Command::Import(a) => import::run(a),
     };

@@ -65,7 +65,7 @@ pub fn lift_robot_keypoints(
     let kind: FeatureKind = cfg
         .detector
         .parse()
-        .map_err(|e: Error| Error::InvalidInput(format!("features method, detector: {e}")))?;
+        .map_err(|e: String| Error::InvalidInput(format!("features method, detector: {e}")))?;
     let fcfg = FeatureConfig {
         kind,
         max_features: cfg.max_per_image,

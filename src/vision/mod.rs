@@ -1,8 +1,9 @@
 //! The image side of calibration (cargo feature `vision`): checkerboard inner corners with subpixel
 //! refinement ([`corners`]), intrinsic calibration by Zhang's method ([`intrinsics`]), the board pose in
 //! each camera by PnP ([`pnp`]), and the board seen by a whole set of images or by a cell's robots
-//! ([`observe`]); 2D keypoint features (SIFT, ORB, AKAZE), their matches and the homography between two
-//! views of a plane ([`features`]).
+//! ([`observe`]); square fiducial markers, ArUco and AprilTag ([`markers`]), and their poses in a cell's
+//! frames with depth ([`marker_sightings`]); 2D keypoint features (SIFT, ORB, AKAZE), their matches and the
+//! homography between two views of a plane ([`features`]), and keypoints lifted to 3D ([`feature_lift`]).
 //!
 //! OpenCV (through the `opencv` crate) does the image work; its types stay inside this module. The public
 //! API takes and returns nalgebra types, [`GreyImage`] and the crate's own [`Intrinsics`] and
@@ -12,6 +13,9 @@
 //! [`Intrinsics`]: crate::camera::Intrinsics
 //! [`Checkerboard`]: crate::cell::Checkerboard
 
+pub mod annotate;
+pub mod apriltag;
+pub mod aruco;
 pub mod circles;
 pub mod corners;
 mod cv;
@@ -21,9 +25,13 @@ pub mod frames;
 pub mod image;
 pub mod intrinsics;
 pub mod marker_sightings;
+pub mod markers;
 pub mod observe;
 pub mod pnp;
 
+pub use annotate::write_marker_annotation;
+pub use apriltag::AprilTagConfig;
+pub use aruco::{dictionary_bits, ArucoConfig, ArucoRefinement};
 pub use corners::{detect_checkerboard, BoardCorners, CornerConfig};
 pub use features::{
     detect_features, detect_features_masked, fit_homography, knn_match, match_features,
@@ -32,6 +40,9 @@ pub use features::{
 };
 pub use image::{read_grey_image, GreyImage};
 pub use intrinsics::{calibrate_intrinsics, IntrinsicCalibration, IntrinsicsConfig, ViewResidual};
+pub use markers::{
+    detect_markers, CornerOrder, MarkerConfig, MarkerDetection, MarkerDetector, SubpixConfig,
+};
 pub use observe::{
     board_in_robot_base, find_frame_images, observe_board, BoardObservation, BoardObservations,
     RobotBoardPose,
