@@ -586,7 +586,7 @@ fn markers_print_their_codes_in_the_colour_image_and_texture_leaves_depth_alone(
     let gt = cell.ground_truth();
     let list = gt.extra["markers"]["markers"].as_array().unwrap();
     assert_eq!(list.len(), 2);
-    assert_eq!(gt.extra["markers"]["dictionary"], "4x4_50");
+    assert_eq!(gt.extra["markers"]["dictionary"], "DICT_4X4_50");
     assert_eq!(
         cell.manifest().extra["markers"]["size_m"].as_float(),
         Some(0.08)

@@ -137,13 +137,13 @@ fn bad_inputs_get_errors_naming_the_robot_and_frames() {
     assert!(e.contains("cell.toml") && e.contains("[markers]"), "{e}");
     edit_manifest(&dir, &|s| s.replace("[markers_unused]", "[markers]"));
     // No marker visible: a dictionary whose markers are not in the images.
-    edit_manifest(&dir, &|s| s.replace("\"4x4_50\"", "\"6x6_250\""));
+    edit_manifest(&dir, &|s| s.replace("\"DICT_4X4_50\"", "\"DICT_6X6_250\""));
     let e = marker_initializer(&Cell::open(&dir).unwrap(), &cfg.marker)
         .err()
         .unwrap()
         .to_string();
     assert!(e.contains("no marker") && e.contains("left"), "{e}");
-    edit_manifest(&dir, &|s| s.replace("\"6x6_250\"", "\"4x4_50\""));
+    edit_manifest(&dir, &|s| s.replace("\"DICT_6X6_250\"", "\"DICT_4X4_50\""));
     // A marker seen by one robot only: the other robot's colour images show none.
     let blind = scratch("mf-bad-blind");
     copy_dir(&dir, &blind);

@@ -387,10 +387,16 @@ impl MarkerInitializer {
             0.0
         };
         let n_pts = p1.len() as f64;
+        // Floors: on simulated cells the errors were 0.05-0.06° / 0.3-0.8 mm whatever the spreads said
+        // (corner localisation and depth biases that averaging over frames does not remove).
         Ok(MarkerEstimate {
             transform,
-            sigma_rotation_deg: info_r.recip().sqrt(),
-            sigma_translation_m: info_t.recip().sqrt().max(fit_rms_mm * 1e-3 / n_pts.sqrt()),
+            sigma_rotation_deg: info_r.recip().sqrt().max(0.05),
+            sigma_translation_m: info_t
+                .recip()
+                .sqrt()
+                .max(fit_rms_mm * 1e-3 / n_pts.sqrt())
+                .max(5e-4),
             common,
             fit_rms_mm,
         })

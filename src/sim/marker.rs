@@ -13,31 +13,25 @@
 use super::board::footprint_albedo;
 use super::marker_codes::{APRILTAG36H11, DICT4X4_50, DICT5X5_100, DICT6X6_250};
 use crate::camera::Intrinsics;
+use crate::cell::MarkerDictionary;
 use crate::error::{Error, Result};
 use crate::geometry::Rng;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
-/// The dictionaries the simulator can print, by canonical name: `(name, inner bits per side, codes)`.
-const DICTIONARIES: [(&str, u32, &[u64]); 4] = [
-    ("4x4_50", 4, &DICT4X4_50),
-    ("5x5_100", 5, &DICT5X5_100),
-    ("6x6_250", 6, &DICT6X6_250),
-    ("tag36h11", 6, &APRILTAG36H11),
+/// The dictionaries the simulator can print: `(dictionary, inner bits per side, codes)`.
+const DICTIONARIES: [(MarkerDictionary, u32, &[u64]); 4] = [
+    (MarkerDictionary::Aruco4x4_50, 4, &DICT4X4_50),
+    (MarkerDictionary::Aruco5x5_100, 5, &DICT5X5_100),
+    (MarkerDictionary::Aruco6x6_250, 6, &DICT6X6_250),
+    (MarkerDictionary::AprilTag36h11, 6, &APRILTAG36H11),
 ];
 
-/// The dictionary names the simulator accepts (OpenCV's `DICT_4X4_50`, `4x4_50`, AprilTag's `tag36h11`,
-/// `36h11`, `DICT_APRILTAG_36h11`, case-insensitive) as its canonical name, inner bits per side and codes.
-fn dictionary(name: &str) -> Option<(&'static str, u32, &'static [u64])> {
-    let l = name.trim().to_ascii_lowercase();
-    let l = l.strip_prefix("dict_").unwrap_or(&l);
-    let l = l.strip_prefix("apriltag_").unwrap_or(l);
-    let l = if l.starts_with("36h11") {
-        "tag36h11"
-    } else {
-        l
-    };
-    DICTIONARIES.iter().find(|d| d.0 == l).copied()
+/// The dictionary `name` names (any spelling [`MarkerDictionary`] accepts) with its bits per side and
+/// codes, when the simulator has it.
+fn dictionary(name: &str) -> Option<(MarkerDictionary, u32, &'static [u64])> {
+    let d: MarkerDictionary = name.parse().ok()?;
+    DICTIONARIES.iter().find(|e| e.0 == d).copied()
 }
 
 /// The inner bits of marker `id` of dictionary `name`: `(bits per side n, code)`, the code's `n²` bits
@@ -46,7 +40,7 @@ pub fn marker_code(name: &str, id: u32) -> Result<(u32, u64)> {
     let (canon, n, codes) = dictionary(name).ok_or_else(|| {
         Error::InvalidInput(format!(
             "the simulator has no marker dictionary {name:?}; it prints {}",
-            DICTIONARIES.map(|d| d.0).join(", ")
+            DICTIONARIES.map(|d| d.0.to_string()).join(", ")
         ))
     })?;
     let code = codes.get(id as usize).ok_or_else(|| {
@@ -310,8 +304,7 @@ impl SimMarkers {
     pub fn manifest_table(&self) -> toml::Value {
         let mut t = toml::Table::new();
         let canon = dictionary(&self.config.dictionary)
-            .map(|d| d.0)
-            .unwrap_or(&self.config.dictionary);
+            .map_or_else(|| self.config.dictionary.clone(), |d| d.0.to_string());
         t.insert("dictionary".into(), canon.into());
         t.insert("size_m".into(), self.config.size_m.into());
         toml::Value::Table(t)
@@ -347,6 +340,8 @@ mod tests {
             c.sort_unstable();
             c.dedup();
             assert_eq!(c.len(), d.2.len(), "{}", d.0);
+            assert_eq!(d.2.len() as u32, d.0.marker_count());
+            assert_eq!(d.1, d.0.bits());
         }
         let cfg = SimMarkersConfig {
             ids: vec![7],
@@ -396,5 +391,23 @@ mod tests {
         };
         let e = SimMarkers::place(&crowded, &mut Rng::new(4), &|_, _| false).unwrap_err();
         assert!(e.to_string().contains("no room"), "{e}");
+    }
+
+    /// The embedded codes are OpenCV's: every marker of the four dictionaries against the dictionaries of
+    /// the OpenCV the crate links.
+    #[cfg(feature = "vision")]
+    #[test]
+    fn embedded_codes_are_opencvs() {
+        for (dict, _, codes) in DICTIONARIES {
+            let name = dict.to_string();
+            for id in 0..codes.len() as u32 {
+                let bits = crate::vision::dictionary_bits(dict, id).unwrap();
+                let (n, code) = marker_code(&name, id).unwrap();
+                let ours: Vec<bool> = (0..n * n)
+                    .map(|k| (code >> (n * n - 1 - k)) & 1 == 1)
+                    .collect();
+                assert_eq!(ours, bits, "{name} id {id}");
+            }
+        }
     }
 }
