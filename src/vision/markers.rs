@@ -241,13 +241,16 @@ impl MarkerDetection {
     }
 }
 
+/// A marker as a detector reports it: id and corners in the detector's order.
+type Found = (u32, [Point2<f64>; 4]);
+
 /// Finds every marker of `cfg.dictionary` in `img`, sorted by id (then by centre, top to bottom and left
 /// to right, for markers with the same id). Errors on invalid settings or when a detector fails.
 pub fn detect_markers(img: &GreyImage, cfg: &MarkerConfig) -> Result<Vec<MarkerDetection>> {
     let dict = cfg.dictionary;
     let detector = cfg.detector.resolve(dict);
     validate_subpix(&cfg.subpix)?;
-    let (order, mut found): (CornerOrder, Vec<(u32, [Point2<f64>; 4])>) = match detector {
+    let (order, mut found): (CornerOrder, Vec<Found>) = match detector {
         MarkerDetector::AprilTag => {
             if !dict.is_apriltag() {
                 return Err(Error::InvalidInput(format!(
@@ -306,7 +309,7 @@ fn validate_subpix(s: &SubpixConfig) -> Result<()> {
     if s.max_iterations == 0 {
         return bad("max_iterations", "must be at least 1");
     }
-    if !(s.epsilon_px > 0.0) {
+    if s.epsilon_px.is_nan() || s.epsilon_px <= 0.0 {
         return bad("epsilon_px", "must be positive");
     }
     Ok(())
@@ -325,7 +328,7 @@ fn auto_half_window(c: &[Point2<f64>; 4], dict: MarkerDictionary) -> u32 {
 fn refine_corners(
     img: &GreyImage,
     dict: MarkerDictionary,
-    found: &mut [(u32, [Point2<f64>; 4])],
+    found: &mut [Found],
     s: &SubpixConfig,
 ) -> Result<()> {
     if found.is_empty() {
