@@ -17,6 +17,7 @@ pub mod aruco;
 pub mod circles;
 pub mod corners;
 mod cv;
+mod edges;
 pub mod image;
 pub mod intrinsics;
 pub mod markers;
@@ -31,6 +32,7 @@ pub use image::{read_grey_image, GreyImage};
 pub use intrinsics::{calibrate_intrinsics, IntrinsicCalibration, IntrinsicsConfig, ViewResidual};
 pub use markers::{
     detect_markers, CornerOrder, MarkerConfig, MarkerDetection, MarkerDetector, SubpixConfig,
+    SubpixMethod,
 };
 pub use observe::{
     board_in_robot_base, find_frame_images, observe_board, BoardObservation, BoardObservations,
