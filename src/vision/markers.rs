@@ -20,7 +20,7 @@
 //! | OpenCV + `cornerSubPix` (window = cell size) | 13/47 | 0.76 px | 3.3 px | 17–40 ms |
 //! | OpenCV, `CORNER_REFINE_CONTOUR` | 19/47 | 0.69 px | 1.7 px | 23–50 ms |
 //! | OpenCV, `CORNER_REFINE_APRILTAG` (15 found) | 15/47 | 0.71 px | 0.71 px | 70–150 ms |
-//! | OpenCV tuned (perimeter rate 0.01, threshold step 4, 8 px per cell; 29 found) | 15/47 | 0.76 px | 5.9 px | 50–80 ms |
+//! | OpenCV tuned (perimeter rate 0.01, threshold step 4, 8 px per cell; 29 found) + `cornerSubPix` | 15/47 | 0.76 px | 5.9 px | 50–80 ms |
 //!
 //! (Times vary with the load of a shared 2-core machine; AprilTag's first call on a thread adds ~40 ms
 //! for the tag36h11 decode table, kept afterwards.) OpenCV 4.6's `CORNER_REFINE_APRILTAG` returns
@@ -40,9 +40,12 @@
 //! # Marker frame (OpenCV's)
 //!
 //! Origin at the centre of the marker, `x` to the right of the printed marker, `y` up as printed, `z` out
-//! of the printed face towards a viewer. "As printed" is the marker as OpenCV's `drawMarker` draws it
-//! (for the AprilTag families this is also AprilTag's own `apriltag_to_image`, checked by a unit test).
-//! With `side_m` the edge of the black square (border included), the printed top-left corner is at
+//! of the printed face towards a viewer. "As printed" is the marker as OpenCV's `drawMarker` draws it.
+//! **For the AprilTag families OpenCV draws every tag turned by a half turn relative to AprilTag's own
+//! images** (`apriltag_to_image`, the official tag PNGs; a unit test checks all four families): for a tag
+//! printed from AprilTag's images the marker frame's `x` points to the left of that print and `y` down
+//! it, and [`super::aruco::dictionary_bits`] gives its bits turned likewise. Both detectors report this
+//! same frame, so poses do not depend on the detector. With `side_m` the edge of the black square (border included), the printed top-left corner is at
 //! `(−side_m/2, side_m/2, 0)`.
 
 use super::apriltag::{detect_apriltags, AprilTagConfig};
