@@ -14,6 +14,11 @@
 //! In every family the printed marker is a black square of `bits() + 2` cells per side: a one-cell black
 //! border around `bits() × bits()` data cells (an AprilTag print adds a white cell outside the black
 //! border; it is not part of the marker's side length).
+//!
+//! The marker frame and the bit tables follow OpenCV's `drawMarker` (`vision::markers`,
+//! `vision::dictionary_bits`). For the AprilTag families OpenCV draws each tag turned by a half turn
+//! relative to AprilTag's own images (the official tag PNGs): whoever renders AprilTag's tables must turn
+//! them to match.
 
 use crate::error::{Error, Result};
 use serde::{Deserialize, Deserializer, Serialize, Serializer};

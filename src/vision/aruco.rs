@@ -58,7 +58,7 @@ pub struct ArucoConfig {
     /// default 0.6).
     pub error_correction_rate: f64,
     /// OpenCV's own corner refinement (default `none`: [`super::markers::SubpixConfig`] refines
-    /// afterwards with a window sized to each marker).
+    /// afterwards by fitting the marker's edges).
     pub corner_refinement: ArucoRefinement,
     /// Half window of OpenCV's own refinement, pixels (`cornerRefinementWinSize`, default 5).
     pub corner_refinement_half_window_px: u32,
@@ -177,6 +177,10 @@ pub(crate) fn detect_aruco(
 
 /// The inner bits of marker `id` of `dict` as OpenCV's `drawMarker` prints it: `bits()²` values,
 /// row-major from the top-left inner cell, `true` = white, the black border excluded.
+///
+/// For the AprilTag families these are OpenCV's `DICT_APRILTAG_*` tables, which draw each tag turned by a
+/// half turn relative to AprilTag's own images: AprilTag's image of the same tag, read row-major from its
+/// top-left data cell, is this list reversed.
 pub fn dictionary_bits(dict: MarkerDictionary, id: u32) -> Result<Vec<bool>> {
     if id >= dict.marker_count() {
         return Err(Error::InvalidInput(format!(

@@ -4,12 +4,34 @@
 //! Two detectors read the markers ([`MarkerDetector`]): OpenCV's ArUco detector (every
 //! [`MarkerDictionary`], see [`super::aruco`]) and AprilTag 3's own detector (the AprilTag families, see
 //! [`super::apriltag`]). [`MarkerDetector::Auto`] takes AprilTag's for the AprilTag families and OpenCV's
-//! for the ArUco dictionaries, as measured on AprilTag's regression images (47 small tag36h11 tags, 13 to
-//! 45 px wide; corners within 1.5 px of AprilTag's reference):
+//! for the ArUco dictionaries (which AprilTag cannot read), as measured on AprilTag's regression images
+//! (three 799×533 JPEGs with 47 tag36h11 tags of 13–45 px; reference = AprilTag's own corners with
+//! `refine_edges` off; a tag counts when all four corners are within 1.5 px; median and max over the
+//! tags matched within 5 px; tests/markers_real.rs prints the table):
 //!
-//! | detector (settings) | found / 47 | median corner error | max corner error | time per image |
+//! | detector (settings) | within 1.5 px | median | max | time / image |
 //! | --- | --- | --- | --- | --- |
-//! | OpenCV 4.6 aruco, defaults (no refinement) | see tests/markers_real.rs | | | |
+//! | AprilTag 3.4.5, `quad_decimate` 1, `refine_edges` (**default**) | 45/47 | 0.32 px | 3.4 px | 30–80 ms |
+//! | AprilTag, `refine_edges` off (the reference's own settings) | 47/47 | 0.00 px | 0.14 px | 30–80 ms |
+//! | AprilTag + `cornerSubPix` | 29/47 | 0.62 px | 4.9 px | 30–80 ms |
+//! | AprilTag, `quad_decimate` 2 | 33/47 | 0.33 px | 1.8 px | 50 ms |
+//! | OpenCV 4.6 aruco + edge fit (OpenCV **default** here), 22 found | 20/47 | 0.29 px | 0.82 px | 20–40 ms |
+//! | OpenCV 4.6 aruco, defaults (whole-pixel corners) | 17/47 | 1.03 px | 3.3 px | 20–40 ms |
+//! | OpenCV + `cornerSubPix` (window = cell size) | 13/47 | 0.76 px | 3.3 px | 17–40 ms |
+//! | OpenCV, `CORNER_REFINE_CONTOUR` | 19/47 | 0.69 px | 1.7 px | 23–50 ms |
+//! | OpenCV, `CORNER_REFINE_APRILTAG` (15 found) | 15/47 | 0.71 px | 0.71 px | 70–150 ms |
+//! | OpenCV tuned (perimeter rate 0.01, threshold step 4, 8 px per cell; 29 found) + `cornerSubPix` | 15/47 | 0.76 px | 5.9 px | 50–80 ms |
+//!
+//! (Times vary with the load of a shared 2-core machine; AprilTag's first call on a thread adds ~40 ms
+//! for the tag36h11 decode table, kept afterwards.) OpenCV 4.6's `CORNER_REFINE_APRILTAG` returns
+//! every corner shifted by exactly (+0.5, +0.5) px: it keeps AprilTag's pixel convention. On synthetic
+//! images with known corners (unit tests: 8×8 supersampling, blur σ 0.7 px) AprilTag with
+//! `refine_edges` is within 0.015 px at 120 px tags and 0.07 px at 40 px (0.12 / 0.17 px without
+//! `refine_edges`, hence the default); OpenCV with the edge fit ([`SubpixMethod::Edges`]) within
+//! 0.012 px, with `cornerSubPix` within 0.22–0.24 px. On OpenCV's ChArUco tutorial photos
+//! (DICT_6X6_250) OpenCV finds 67 of the 68 markers; the median per-marker PnP residual with the
+//! reference intrinsics is 0.084 px with the edge fit, 0.153 px with `cornerSubPix`, 0.162 px without
+//! refinement.
 //!
 //! Each detector keeps its own corner order ([`CornerOrder`]); [`MarkerDetection::canonical_corners`]
 //! gives OpenCV's order for either, and [`MarkerDetection::object_corners`] the marker-frame points that
@@ -18,9 +40,12 @@
 //! # Marker frame (OpenCV's)
 //!
 //! Origin at the centre of the marker, `x` to the right of the printed marker, `y` up as printed, `z` out
-//! of the printed face towards a viewer. "As printed" is the marker as OpenCV's `drawMarker` draws it
-//! (for the AprilTag families this is also AprilTag's own `apriltag_to_image`, checked by a unit test).
-//! With `side_m` the edge of the black square (border included), the printed top-left corner is at
+//! of the printed face towards a viewer. "As printed" is the marker as OpenCV's `drawMarker` draws it.
+//! **For the AprilTag families OpenCV draws every tag turned by a half turn relative to AprilTag's own
+//! images** (`apriltag_to_image`, the official tag PNGs; a unit test checks all four families): for a tag
+//! printed from AprilTag's images the marker frame's `x` points to the left of that print and `y` down
+//! it, and [`super::aruco::dictionary_bits`] gives its bits turned likewise. Both detectors report this
+//! same frame, so poses do not depend on the detector. With `side_m` the edge of the black square (border included), the printed top-left corner is at
 //! `(−side_m/2, side_m/2, 0)`.
 
 use super::apriltag::{detect_apriltags, AprilTagConfig};
@@ -128,23 +153,39 @@ impl CornerOrder {
     }
 }
 
-/// Sub-pixel corner refinement after detection (OpenCV's `cornerSubPix`), with a window sized to each
-/// marker.
+/// How [`SubpixConfig`] refines corners.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SubpixMethod {
+    /// Lines fitted to the four edges of the black square on the image gradient, intersected (see
+    /// `vision/edges.rs`).
+    Edges,
+    /// OpenCV's `cornerSubPix` at each corner, with a window sized to the marker.
+    #[serde(rename = "cornersubpix")]
+    CornerSubPix,
+}
+
+/// Sub-pixel corner refinement after detection.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SubpixConfig {
     /// Refine the corners of OpenCV's detector (default true: it gives whole-pixel polygon corners).
+    /// OpenCV's own `CORNER_REFINE_*` ([`ArucoConfig::corner_refinement`]) runs before this.
     pub opencv: bool,
     /// Refine the corners of AprilTag's detector as well (default false: its edge refinement is already
     /// sub-pixel).
     pub apriltag: bool,
-    /// Half side of the search window, pixels (the window is `2·n + 1` pixels wide). Default none:
+    /// The refinement (default `edges`).
+    pub method: SubpixMethod,
+    /// Edge refinement passes, each from the last one's corners (default 2).
+    pub edge_passes: u32,
+    /// `cornerSubPix`: half side of the search window, pixels (the window is `2·n + 1` pixels wide). Default none:
     /// the marker's cell size (its shortest side over `bits + 2`), between 2 and 11 px, so the window
     /// stays near the corner.
     pub half_window_px: Option<u32>,
-    /// Most iterations (default 40).
+    /// `cornerSubPix`: most iterations (default 40).
     pub max_iterations: u32,
-    /// Stop when a corner moves less than this, pixels (default 0.001).
+    /// `cornerSubPix`: stop when a corner moves less than this, pixels (default 0.001).
     pub epsilon_px: f64,
 }
 
@@ -153,6 +194,8 @@ impl Default for SubpixConfig {
         SubpixConfig {
             opencv: true,
             apriltag: false,
+            method: SubpixMethod::Edges,
+            edge_passes: 2,
             half_window_px: None,
             max_iterations: 40,
             epsilon_px: 0.001,
@@ -241,13 +284,16 @@ impl MarkerDetection {
     }
 }
 
+/// A marker as a detector reports it: id and corners in the detector's order.
+type Found = (u32, [Point2<f64>; 4]);
+
 /// Finds every marker of `cfg.dictionary` in `img`, sorted by id (then by centre, top to bottom and left
 /// to right, for markers with the same id). Errors on invalid settings or when a detector fails.
 pub fn detect_markers(img: &GreyImage, cfg: &MarkerConfig) -> Result<Vec<MarkerDetection>> {
     let dict = cfg.dictionary;
     let detector = cfg.detector.resolve(dict);
     validate_subpix(&cfg.subpix)?;
-    let (order, mut found): (CornerOrder, Vec<(u32, [Point2<f64>; 4])>) = match detector {
+    let (order, mut found): (CornerOrder, Vec<Found>) = match detector {
         MarkerDetector::AprilTag => {
             if !dict.is_apriltag() {
                 return Err(Error::InvalidInput(format!(
@@ -303,10 +349,13 @@ fn validate_subpix(s: &SubpixConfig) -> Result<()> {
     if s.half_window_px == Some(0) {
         return bad("half_window_px", "must be at least 1");
     }
+    if s.edge_passes == 0 {
+        return bad("edge_passes", "must be at least 1");
+    }
     if s.max_iterations == 0 {
         return bad("max_iterations", "must be at least 1");
     }
-    if !(s.epsilon_px > 0.0) {
+    if s.epsilon_px.is_nan() || s.epsilon_px <= 0.0 {
         return bad("epsilon_px", "must be positive");
     }
     Ok(())
@@ -321,14 +370,22 @@ fn auto_half_window(c: &[Point2<f64>; 4], dict: MarkerDictionary) -> u32 {
     (cell.round() as u32).clamp(2, 11)
 }
 
-/// `cornerSubPix` on each marker's corners, with a window sized to the marker.
+/// The configured refinement of each marker's corners.
 fn refine_corners(
     img: &GreyImage,
     dict: MarkerDictionary,
-    found: &mut [(u32, [Point2<f64>; 4])],
+    found: &mut [Found],
     s: &SubpixConfig,
 ) -> Result<()> {
     if found.is_empty() {
+        return Ok(());
+    }
+    if s.method == SubpixMethod::Edges {
+        for (_, c) in found.iter_mut() {
+            // A corner the edges move by more than a cell (or 2 px) is not trusted.
+            let cell = auto_half_window(c, dict) as f64;
+            super::edges::refine_quad(img, c, dict.bits() + 2, s.edge_passes, cell.max(2.0));
+        }
         return Ok(());
     }
     let mat = img.to_mat()?;
@@ -574,36 +631,35 @@ mod tests {
 
     #[test]
     fn synthetic_aruco_marker_through_opencv() {
-        check_synthetic(
-            MarkerDictionary::Aruco4x4_50,
-            7,
-            &with(MarkerDetector::Auto),
-            1.0,
-            0.3,
-        );
-        check_synthetic(
-            MarkerDictionary::Aruco6x6_250,
-            123,
-            &with(MarkerDetector::OpenCv),
-            1.0,
-            0.3,
-        );
+        use MarkerDictionary::{Aruco4x4_50 as A4, Aruco6x6_250 as A6};
+        let (auto, ocv) = (with(MarkerDetector::Auto), with(MarkerDetector::OpenCv));
+        check_synthetic(A4, 7, &auto, 1.0, 0.05);
+        check_synthetic(A6, 123, &ocv, 1.0, 0.05);
+        // ~40 px markers.
+        check_synthetic(A4, 7, &ocv, 3.0, 0.1);
+        check_synthetic(A6, 123, &ocv, 3.0, 0.1);
+        // cornerSubPix, the alternative refinement.
+        let mut c = with(MarkerDetector::OpenCv);
+        c.subpix.method = SubpixMethod::CornerSubPix;
+        check_synthetic(A6, 123, &c, 1.0, 0.3);
     }
 
     #[test]
     fn synthetic_tag36h11_through_both_detectors() {
+        use MarkerDictionary::{AprilTag16h5, AprilTag36h10, AprilTag36h11};
         let (auto, april, ocv) = (
             with(MarkerDetector::Auto),
             with(MarkerDetector::AprilTag),
             with(MarkerDetector::OpenCv),
         );
-        check_synthetic(MarkerDictionary::AprilTag36h11, 0, &auto, 1.0, 0.3);
-        check_synthetic(MarkerDictionary::AprilTag36h11, 42, &april, 1.0, 0.3);
-        check_synthetic(MarkerDictionary::AprilTag36h11, 42, &ocv, 1.0, 0.3);
-        check_synthetic(MarkerDictionary::AprilTag16h5, 3, &april, 1.0, 0.3);
-        check_synthetic(MarkerDictionary::AprilTag36h10, 100, &april, 1.0, 0.3);
+        check_synthetic(AprilTag36h11, 0, &auto, 1.0, 0.05);
+        check_synthetic(AprilTag36h11, 42, &april, 1.0, 0.05);
+        check_synthetic(AprilTag36h11, 42, &ocv, 1.0, 0.05);
+        check_synthetic(AprilTag16h5, 3, &april, 1.0, 0.05);
+        check_synthetic(AprilTag36h10, 100, &april, 1.0, 0.05);
         // A marker of ~40 px, as small as the regression images' larger tags.
-        check_synthetic(MarkerDictionary::AprilTag36h11, 42, &april, 3.0, 0.15);
+        check_synthetic(AprilTag36h11, 42, &april, 3.0, 0.15);
+        check_synthetic(AprilTag36h11, 42, &ocv, 3.0, 0.15);
     }
 
     #[test]

@@ -19,6 +19,7 @@ pub mod aruco;
 pub mod circles;
 pub mod corners;
 mod cv;
+mod edges;
 pub mod feature_lift;
 pub mod features;
 pub mod frames;
@@ -42,6 +43,7 @@ pub use image::{read_grey_image, GreyImage};
 pub use intrinsics::{calibrate_intrinsics, IntrinsicCalibration, IntrinsicsConfig, ViewResidual};
 pub use markers::{
     detect_markers, CornerOrder, MarkerConfig, MarkerDetection, MarkerDetector, SubpixConfig,
+    SubpixMethod,
 };
 pub use observe::{
     board_in_robot_base, find_frame_images, observe_board, BoardObservation, BoardObservations,
