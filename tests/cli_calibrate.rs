@@ -1,0 +1,66 @@
+//! `depthcal calibrate` and `depthcal compare` end to end on the demo cell shipped in `clouds/demo-cell`
+//! (simulated, depth only): the refined and the `--no-refine` reports, and `compare` skipping the image
+//! methods with their reasons.
+
+mod common;
+use common::depthcal;
+
+const DEMO: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/clouds/demo-cell");
+
+fn json(out: &str) -> serde_json::Value {
+    serde_json::from_str(out).unwrap_or_else(|e| panic!("{e}: {out}"))
+}
+
+#[test]
+fn calibrate_refines_and_no_refine_reports_the_initial_estimate() {
+    let (code, out, err) = depthcal(&["calibrate", DEMO, "--json", "--threads", "2"]);
+    assert_eq!(code, 0, "{err}");
+    let v = json(&out);
+    assert_eq!(v["refined"], true);
+    assert!(v["error_vs_truth"]["rotation_deg"].as_f64().unwrap() < 0.1);
+    assert!(v["error_vs_truth"]["translation_mm"].as_f64().unwrap() < 1.0);
+    let (code, out, err) =
+        depthcal(&["calibrate", DEMO, "--json", "--no-refine", "--threads", "2"]);
+    assert_eq!(code, 0, "{err}");
+    let n = json(&out);
+    assert_eq!(n["refined"], false);
+    assert_eq!(n["transform"], n["initial"]["transform"]);
+    assert!(
+        n["fitness"].is_null(),
+        "no cloud quality without refinement: {}",
+        n["fitness"]
+    );
+    assert!(
+        n["initial"]["error_vs_truth"]["rotation_deg"]
+            .as_f64()
+            .unwrap()
+            < 2.0
+    );
+    // The image methods need what the demo cell does not have.
+    let (code, _, err) = depthcal(&["calibrate", DEMO, "--method", "marker"]);
+    assert_ne!(code, 0);
+    assert!(err.contains("[markers]") || err.contains("vision"), "{err}");
+    let (code, _, err) = depthcal(&["calibrate", DEMO, "--method", "depth", "--detector", "orb"]);
+    assert_ne!(code, 0);
+    assert!(err.contains("--detector is for --method features"), "{err}");
+}
+
+#[test]
+fn compare_runs_depth_and_says_why_the_others_are_skipped() {
+    let (code, out, err) = depthcal(&["compare", DEMO, "--json", "--threads", "2"]);
+    assert_eq!(code, 0, "{err}");
+    let v = json(&out);
+    let m = v["methods"].as_array().unwrap();
+    let depth = m.iter().find(|x| x["method"] == "depth").unwrap();
+    assert_eq!(depth["status"], "ok");
+    assert!(depth["error_vs_truth"]["translation_mm"].as_f64().unwrap() < 1.0);
+    assert!(depth["disagreement"].is_null(), "nothing to disagree with");
+    for name in ["checkerboard", "marker", "features"] {
+        let x = m.iter().find(|x| x["method"] == name).unwrap();
+        assert_eq!(x["status"], "skipped", "{x}");
+        assert!(!x["reason"].as_str().unwrap().is_empty());
+    }
+    let (code, out, _) = depthcal(&["compare", DEMO, "--threads", "2"]);
+    assert_eq!(code, 0);
+    assert!(out.contains("depth") && out.contains("skipped"), "{out}");
+}
