@@ -81,28 +81,12 @@ impl SimBoardConfig {
         if !(self.margin_m.is_finite() && self.margin_m >= 0.0) {
             return bad("margin_m", format!("must be ≥ 0, found {}", self.margin_m));
         }
-        if !self.albedo.iter().all(|a| (0.0..=1.0).contains(a)) || self.albedo[0] >= self.albedo[1]
-        {
-            return bad(
-                "albedo",
-                format!(
-                    "must be [black, white] in [0, 1] with black < white, found {:?}",
-                    self.albedo
-                ),
-            );
-        }
-        if !(1..=16).contains(&self.supersample) {
-            return bad(
-                "supersample",
-                format!("must be 1–16, found {}", self.supersample),
-            );
-        }
-        if !(self.blur_sigma_px.is_finite() && (0.0..=5.0).contains(&self.blur_sigma_px)) {
-            return bad(
-                "blur_sigma_px",
-                format!("must be in [0, 5] pixels, found {}", self.blur_sigma_px),
-            );
-        }
+        validate_print_look(
+            "scene.board",
+            self.albedo,
+            self.supersample,
+            self.blur_sigma_px,
+        )?;
         let finite = self.center_m.iter().all(|v| v.is_finite());
         if !(self.yaw_range_deg.is_finite() && self.yaw_range_deg >= 0.0 && finite) {
             return bad(
@@ -210,6 +194,38 @@ impl SimBoard {
     pub fn manifest_table(&self) -> toml::Value {
         self.board.to_toml()
     }
+}
+
+/// Checks the look of a print on the table (black and white albedo, sub-pixel rays, blur); the error
+/// names `prefix.field`.
+pub(crate) fn validate_print_look(
+    prefix: &str,
+    albedo: [f64; 2],
+    supersample: u32,
+    blur_sigma_px: f64,
+) -> Result<()> {
+    let bad = |f: &str, msg: String| {
+        Err(Error::Config {
+            field: format!("{prefix}.{f}"),
+            msg,
+        })
+    };
+    if !albedo.iter().all(|a| (0.0..=1.0).contains(a)) || albedo[0] >= albedo[1] {
+        return bad(
+            "albedo",
+            format!("must be [black, white] in [0, 1] with black < white, found {albedo:?}"),
+        );
+    }
+    if !(1..=16).contains(&supersample) {
+        return bad("supersample", format!("must be 1–16, found {supersample}"));
+    }
+    if !(blur_sigma_px.is_finite() && (0.0..=5.0).contains(&blur_sigma_px)) {
+        return bad(
+            "blur_sigma_px",
+            format!("must be in [0, 5] pixels, found {blur_sigma_px}"),
+        );
+    }
+    Ok(())
 }
 
 /// Mean albedo over the footprint of pixel `(u, v)` of a camera at `t_world_cam` on a print lying on the

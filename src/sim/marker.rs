@@ -10,7 +10,7 @@
 //! The marker frame is OpenCV's: origin at the centre of the black square, `x` to the right of the printed
 //! marker, `y` up as printed, `z` out of the printed face (here straight up, out of the table).
 
-use super::board::footprint_albedo;
+use super::board::{footprint_albedo, validate_print_look};
 use super::marker_codes::{APRILTAG36H11, DICT4X4_50, DICT5X5_100, DICT6X6_250};
 use crate::camera::Intrinsics;
 use crate::cell::MarkerDictionary;
@@ -136,28 +136,12 @@ impl SimMarkersConfig {
                 format!("must be ≥ 0, found {}", self.yaw_range_deg),
             );
         }
-        if !self.albedo.iter().all(|a| (0.0..=1.0).contains(a)) || self.albedo[0] >= self.albedo[1]
-        {
-            return bad(
-                "albedo",
-                format!(
-                    "must be [black, white] in [0, 1] with black < white, found {:?}",
-                    self.albedo
-                ),
-            );
-        }
-        if !(1..=16).contains(&self.supersample) {
-            return bad(
-                "supersample",
-                format!("must be 1–16, found {}", self.supersample),
-            );
-        }
-        if !(self.blur_sigma_px.is_finite() && (0.0..=5.0).contains(&self.blur_sigma_px)) {
-            return bad(
-                "blur_sigma_px",
-                format!("must be in [0, 5] pixels, found {}", self.blur_sigma_px),
-            );
-        }
+        validate_print_look(
+            "scene.markers",
+            self.albedo,
+            self.supersample,
+            self.blur_sigma_px,
+        )?;
         Ok(())
     }
 }
