@@ -374,6 +374,7 @@ fn matched_correspondences(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::transform::pose_error;
     use crate::geometry::transform::random_isometry;
 
     #[test]
@@ -404,13 +405,8 @@ mod tests {
         }
         let cfg = RigidRansacConfig::default();
         let r = ransac_rigid(&src, &dst, &cfg, 1, &|_| true).unwrap();
-        let d = truth.inverse() * r.transform;
-        assert!(
-            d.rotation.angle().to_degrees() < 0.2,
-            "{}",
-            d.rotation.angle().to_degrees()
-        );
-        assert!(d.translation.vector.norm() < 2e-3);
+        let (er, et) = pose_error(&r.transform, &truth);
+        assert!(er < 0.2 && et < 2e-3, "{er}° / {et} m");
         assert!(
             (95..=105).contains(&r.inlier_count()),
             "{}",

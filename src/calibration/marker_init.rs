@@ -530,6 +530,7 @@ fn sightings_of(
 mod tests {
     use super::*;
     use crate::cell::CellFrame;
+    use crate::geometry::transform::pose_error;
     use crate::geometry::transform::random_isometry;
     use crate::geometry::Rng;
     use nalgebra::{Translation3, UnitQuaternion};
@@ -598,17 +599,8 @@ mod tests {
         )
         .unwrap()
         .unwrap();
-        let d = truth.inverse() * t;
-        assert!(
-            d.rotation.angle().to_degrees() < 0.3,
-            "{}",
-            d.rotation.angle().to_degrees()
-        );
-        assert!(
-            d.translation.vector.norm() < 1e-3,
-            "{}",
-            d.translation.vector.norm()
-        );
+        let (r, t) = pose_error(&t, &truth);
+        assert!(r < 0.3 && t < 1e-3, "{r}° / {t} m");
         assert!(
             (fit.edge_m - 0.08).abs() < 1e-3 && fit.points > 1000,
             "{fit:?}"
@@ -690,17 +682,8 @@ mod tests {
         };
         let e = init.estimate().unwrap();
         assert_eq!(e.common, vec![1, 2]);
-        let d = t_b1_b2.inverse() * e.transform;
-        assert!(
-            d.rotation.angle().to_degrees() < 0.05,
-            "{}",
-            d.rotation.angle().to_degrees()
-        );
-        assert!(
-            d.translation.vector.norm() < 1e-3,
-            "{}",
-            d.translation.vector.norm()
-        );
+        let (r, t) = pose_error(&e.transform, &t_b1_b2);
+        assert!(r < 0.05 && t < 1e-3, "{r}° / {t} m");
         assert!(e.sigma_translation_m > 1e-5 && e.sigma_translation_m < 5e-3);
         // A marker seen by one robot only.
         let lonely = MarkerInitializer {

@@ -161,15 +161,32 @@ pub struct FusedCell {
     pub fuse_ms: f64,
 }
 
+impl FusedCell {
+    /// No clouds, only the priors: for initialisers that do not need the clouds, without refinement.
+    pub fn without_clouds(cell: &Cell, cfg: &CalibrateConfig) -> Result<Self> {
+        Ok(FusedCell {
+            reference: FusedCloud::default(),
+            other: FusedCloud::default(),
+            priors: read_priors(cell, cfg)?,
+            fuse_ms: 0.0,
+        })
+    }
+}
+
+/// The `[priors]` of `cell.toml`, or none when `cfg.use_priors` is off.
+fn read_priors(cell: &Cell, cfg: &CalibrateConfig) -> Result<CellPriors> {
+    if cfg.use_priors {
+        CellPriors::from_manifest_extra(&cell.manifest.extra, &cell.dir.join("cell.toml"))
+    } else {
+        Ok(CellPriors::default())
+    }
+}
+
 /// Fuses both robots' frames in their own base frames (in parallel), and reads the priors.
 pub fn fuse_cell(cell: &Cell, cfg: &CalibrateConfig) -> Result<FusedCell> {
     let t0 = Instant::now();
     let (reference, other) = robot_pair(cell)?;
-    let priors = if cfg.use_priors {
-        CellPriors::from_manifest_extra(&cell.manifest.extra, &cell.dir.join("cell.toml"))?
-    } else {
-        CellPriors::default()
-    };
+    let priors = read_priors(cell, cfg)?;
     // Both robots at once: each fusion has sequential parts (index builds, voxel merges).
     let fuse = |r: &CellRobot| -> Result<FusedCloud> { fuse_robot(r, &cfg.fuse, &|_| {}) };
     let (ref_cloud, other_cloud) = rayon::join(|| fuse(reference), || fuse(other));
@@ -199,7 +216,9 @@ pub fn calibrate(
         other.name
     ));
     let fused = fuse_cell(cell, cfg)?;
-    refine_cell(cell, &fused, initializer, cfg, true, progress)
+    let mut c = refine_cell(cell, &fused, initializer, cfg, true, progress)?;
+    c.timings_ms.insert(0, ("fuse".into(), fused.fuse_ms));
+    Ok(c)
 }
 
 /// The initialiser's estimate alone, without fusing or refining (`calibrate --no-refine`): for initialisers
@@ -214,22 +233,16 @@ pub fn initialize_only(
         progress("fusing both robots' frames");
         fuse_cell(cell, cfg)?
     } else {
-        let priors = if cfg.use_priors {
-            CellPriors::from_manifest_extra(&cell.manifest.extra, &cell.dir.join("cell.toml"))?
-        } else {
-            CellPriors::default()
-        };
-        FusedCell {
-            reference: FusedCloud::default(),
-            other: FusedCloud::default(),
-            priors,
-            fuse_ms: 0.0,
-        }
+        FusedCell::without_clouds(cell, cfg)?
     };
-    refine_cell(cell, &fused, initializer, cfg, false, progress)
+    let mut c = refine_cell(cell, &fused, initializer, cfg, false, progress)?;
+    if initializer.needs_clouds() {
+        c.timings_ms.insert(0, ("fuse".into(), fused.fuse_ms));
+    }
+    Ok(c)
 }
 
-/// Runs `initializer` on the fused cell and, when `refine` is set, refines its estimate with trimmed robust
+/// Runs `initializer` on the fused cell (the timings exclude the fusion) and, when `refine` is set, refines its estimate with trimmed robust
 /// ICP; without refinement the result is the initial estimate with a covariance from its stated 1-σ and
 /// no cloud quality figures (NaN).
 pub fn refine_cell(
@@ -242,9 +255,6 @@ pub fn refine_cell(
 ) -> Result<Calibration> {
     let (reference, other) = robot_pair(cell)?;
     let mut timings = Vec::new();
-    if fused.fuse_ms > 0.0 {
-        timings.push(("fuse".to_string(), fused.fuse_ms));
-    }
     let mut lap = {
         let mut t = Instant::now();
         move |name: &str, timings: &mut Vec<(String, f64)>| {

@@ -1,10 +1,10 @@
 //! `depthcal calibrate CELL_DIR`: robot-to-robot calibration of a cell dataset.
 
-use super::methods::{build, Method, MethodInputs};
+use super::methods::{build, CalibrateSettings, Method, MethodInputs};
 use super::output::{matrix4_json, matrix4_text, matrix6_json, spinner, timings_json};
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
-use depthcal::calibration::robot_to_robot::{calibrate, initialize_only, CalibrateConfig};
+use depthcal::calibration::robot_to_robot::{calibrate, initialize_only};
 use depthcal::cell::Cell;
 use depthcal::geometry::pose::{isometry_to_xyzquat, KukaPose};
 use std::path::PathBuf;
@@ -35,15 +35,8 @@ pub struct Args {
     /// Print one JSON object on stdout.
     #[arg(long)]
     json: bool,
-    /// Ignore the [priors] table of cell.toml.
-    #[arg(long)]
-    no_priors: bool,
-    /// Seed of the randomised steps.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// A JSON file with a (partial) CalibrateConfig.
-    #[arg(long)]
-    config: Option<PathBuf>,
+    #[command(flatten)]
+    settings: CalibrateSettings,
 }
 
 fn parse_board_pose(s: &str) -> Result<(String, PathBuf), String> {
@@ -60,10 +53,7 @@ fn parse_board_pose(s: &str) -> Result<(String, PathBuf), String> {
 /// Runs the command.
 pub fn run(a: Args) -> Result<()> {
     let start = Instant::now();
-    let mut cfg: CalibrateConfig =
-        super::output::read_config(a.config.as_deref(), "calibrate configuration")?;
-    cfg.seed = a.seed;
-    cfg.use_priors = !a.no_priors;
+    let mut cfg = a.settings.config()?;
     if let Some(d) = &a.detector {
         if a.method != Method::Features {
             anyhow::bail!("--detector is for --method features");

@@ -1,13 +1,11 @@
 //! `depthcal compare CELL_DIR`: every calibration method the cell's data allows, on the same fused clouds,
 //! in one table.
 
-use super::methods::{available, build, Method, MethodInputs};
+use super::methods::{available, build, CalibrateSettings, Method, MethodInputs};
 use super::output::matrix4_json;
 use anyhow::Result;
 use clap::Args as ClapArgs;
-use depthcal::calibration::robot_to_robot::{
-    fuse_cell, refine_cell, CalibrateConfig, Calibration, FusedCell,
-};
+use depthcal::calibration::robot_to_robot::{fuse_cell, refine_cell, Calibration, FusedCell};
 use depthcal::cell::Cell;
 use depthcal::geometry::transform::pose_error;
 use std::path::PathBuf;
@@ -26,15 +24,8 @@ pub struct Args {
     /// method runs).
     #[arg(long)]
     no_refine: bool,
-    /// Ignore the [priors] table of cell.toml.
-    #[arg(long)]
-    no_priors: bool,
-    /// Seed of the randomised steps.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// A JSON file with a (partial) CalibrateConfig.
-    #[arg(long)]
-    config: Option<PathBuf>,
+    #[command(flatten)]
+    settings: CalibrateSettings,
     /// Print one JSON object on stdout.
     #[arg(long)]
     json: bool,
@@ -50,10 +41,7 @@ struct Row {
 /// Runs the command.
 pub fn run(a: Args) -> Result<()> {
     let start = Instant::now();
-    let mut cfg: CalibrateConfig =
-        super::output::read_config(a.config.as_deref(), "calibrate configuration")?;
-    cfg.seed = a.seed;
-    cfg.use_priors = !a.no_priors;
+    let cfg = a.settings.config()?;
     let cell = Cell::open(&a.cell)?;
     let mut plan = available(&cell);
     if !a.methods.is_empty() {
@@ -72,19 +60,13 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     let needs_fusion = !a.no_refine || plan.iter().any(|(m, r)| *m == Method::Depth && r.is_none());
-    let fused: Option<FusedCell> = if needs_fusion {
+    let fused = if needs_fusion {
         if !a.json {
             eprintln!("fusing both robots' frames ...");
         }
-        Some(fuse_cell(&cell, &cfg)?)
+        fuse_cell(&cell, &cfg)?
     } else {
-        None
-    };
-    let empty = FusedCell {
-        reference: Default::default(),
-        other: Default::default(),
-        priors: Default::default(),
-        fuse_ms: 0.0,
+        FusedCell::without_clouds(&cell, &cfg)?
     };
     let mut rows = Vec::new();
     for (method, reason) in plan {
@@ -102,21 +84,9 @@ pub fn run(a: Args) -> Result<()> {
         let t0 = Instant::now();
         let outcome = (|| -> Result<Calibration> {
             let (init, _, _) = build(method, &cell, &MethodInputs::default(), &cfg)?;
-            let mut f = fused.as_ref().unwrap_or(&empty).clone();
-            f.fuse_ms = 0.0;
-            if fused.is_none() {
-                f.priors = if cfg.use_priors {
-                    depthcal::calibration::priors::CellPriors::from_manifest_extra(
-                        &cell.manifest.extra,
-                        &cell.dir.join(depthcal::cell::MANIFEST_FILE),
-                    )?
-                } else {
-                    Default::default()
-                };
-            }
             Ok(refine_cell(
                 &cell,
-                &f,
+                &fused,
                 init.as_ref(),
                 &cfg,
                 !a.no_refine,
@@ -149,7 +119,7 @@ pub fn run(a: Args) -> Result<()> {
                 Some(acc.map_or((r, tr), |(ar, at)| (ar.max(r), at.max(tr))))
             })
     };
-    let fuse_ms = fused.as_ref().map_or(0.0, |f| f.fuse_ms);
+    let fuse_ms = fused.fuse_ms;
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
     if a.json {
         let err = |e: Option<(f64, f64)>| {

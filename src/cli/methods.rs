@@ -42,6 +42,31 @@ impl Method {
     }
 }
 
+/// The settings `calibrate` and `compare` share.
+#[derive(clap::Args)]
+pub struct CalibrateSettings {
+    /// Ignore the [priors] table of cell.toml.
+    #[arg(long)]
+    no_priors: bool,
+    /// Seed of the randomised steps.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// A JSON file with a (partial) CalibrateConfig.
+    #[arg(long)]
+    config: Option<PathBuf>,
+}
+
+impl CalibrateSettings {
+    /// The configuration: the `--config` file (or the defaults) with the seed and the priors switch.
+    pub fn config(&self) -> Result<CalibrateConfig> {
+        let mut cfg: CalibrateConfig =
+            super::output::read_config(self.config.as_deref(), "calibrate configuration")?;
+        cfg.seed = self.seed;
+        cfg.use_priors = !self.no_priors;
+        Ok(cfg)
+    }
+}
+
 /// What a method needs beyond the cell itself.
 #[derive(Default)]
 pub struct MethodInputs {

@@ -155,23 +155,24 @@ impl SimBoard {
         dx.hypot(dy) < r
     }
 
-    /// Linear albedo of the table-frame point `(x, y, 0)`: `None` off the sheet.
-    pub fn albedo_at(&self, x: f64, y: f64) -> Option<f64> {
-        let p = self.t_world_board.inverse() * Point3::new(x, y, 0.0);
-        let [x0, x1, y0, y1] = self.sheet();
-        if p.x < x0 || p.x > x1 || p.y < y0 || p.y > y1 {
-            return None;
-        }
-        let [black, white] = self.config.albedo;
-        Some(match self.board.is_black(p.x, p.y) {
-            Some(true) => black,
-            _ => white,
-        })
+    /// The `[board]` table of `cell.toml`.
+    pub fn manifest_table(&self) -> toml::Value {
+        self.board.to_toml()
     }
+}
+
+/// A print lying on the table top (the board, the markers): its albedo at table points, rendered by pixel
+/// coverage ([`footprint_albedo`]).
+pub trait TablePrint {
+    /// Linear albedo of the table point `(x, y, 0)`: `None` off the print.
+    fn albedo_at(&self, x: f64, y: f64) -> Option<f64>;
+
+    /// Sub-pixel rays per axis for the pixel coverage.
+    fn supersample(&self) -> u32;
 
     /// Mean albedo over the footprint of pixel `(u, v)` of a camera at `t_world_cam` (see
-    /// [`footprint_albedo`]), or `None` when the pixel centre's ray does not meet the sheet.
-    pub fn pixel_albedo(
+    /// [`footprint_albedo`]), or `None` when the pixel centre's ray does not meet the print.
+    fn pixel_albedo(
         &self,
         intr: &Intrinsics,
         t_world_cam: &Isometry3<f64>,
@@ -184,15 +185,29 @@ impl SimBoard {
             t_world_cam,
             u,
             v,
-            self.config.supersample,
+            self.supersample(),
             &|x, y| self.albedo_at(x, y),
             table,
         )
     }
+}
 
-    /// The `[board]` table of `cell.toml`.
-    pub fn manifest_table(&self) -> toml::Value {
-        self.board.to_toml()
+impl TablePrint for SimBoard {
+    fn albedo_at(&self, x: f64, y: f64) -> Option<f64> {
+        let p = self.t_world_board.inverse() * Point3::new(x, y, 0.0);
+        let [x0, x1, y0, y1] = self.sheet();
+        if p.x < x0 || p.x > x1 || p.y < y0 || p.y > y1 {
+            return None;
+        }
+        let [black, white] = self.config.albedo;
+        Some(match self.board.is_black(p.x, p.y) {
+            Some(true) => black,
+            _ => white,
+        })
+    }
+
+    fn supersample(&self) -> u32 {
+        self.config.supersample
     }
 }
 

@@ -10,9 +10,8 @@
 //! The marker frame is OpenCV's: origin at the centre of the black square, `x` to the right of the printed
 //! marker, `y` up as printed, `z` out of the printed face (here straight up, out of the table).
 
-use super::board::{footprint_albedo, validate_print_look};
+use super::board::{validate_print_look, TablePrint};
 use super::marker_codes::{APRILTAG36H11, DICT4X4_50, DICT5X5_100, DICT6X6_250};
-use crate::camera::Intrinsics;
 use crate::cell::MarkerDictionary;
 use crate::error::{Error, Result};
 use crate::geometry::Rng;
@@ -235,8 +234,20 @@ impl SimMarkers {
         })
     }
 
-    /// Linear albedo of the table point `(x, y, 0)`: `None` off every sheet.
-    pub fn albedo_at(&self, x: f64, y: f64) -> Option<f64> {
+    /// The `[markers]` table of `cell.toml`: dictionary and black-square edge.
+    pub fn manifest_table(&self) -> toml::Value {
+        let mut t = toml::Table::new();
+        let canon = dictionary(&self.config.dictionary)
+            .map_or_else(|| self.config.dictionary.clone(), |d| d.0.to_string());
+        t.insert("dictionary".into(), canon.into());
+        t.insert("size_m".into(), self.config.size_m.into());
+        toml::Value::Table(t)
+    }
+}
+
+impl TablePrint for SimMarkers {
+    /// `None` off every sheet.
+    fn albedo_at(&self, x: f64, y: f64) -> Option<f64> {
         let s = self.config.size_m;
         let half = s / 2.0;
         let outer = half + self.config.margin_m;
@@ -263,35 +274,8 @@ impl SimMarkers {
         })
     }
 
-    /// Mean albedo over the footprint of pixel `(u, v)` (see [`footprint_albedo`]), or `None` when the
-    /// pixel centre's ray meets no sheet.
-    pub fn pixel_albedo(
-        &self,
-        intr: &Intrinsics,
-        t_world_cam: &Isometry3<f64>,
-        u: f64,
-        v: f64,
-        table: &dyn Fn(f64, f64) -> f64,
-    ) -> Option<f64> {
-        footprint_albedo(
-            intr,
-            t_world_cam,
-            u,
-            v,
-            self.config.supersample,
-            &|x, y| self.albedo_at(x, y),
-            table,
-        )
-    }
-
-    /// The `[markers]` table of `cell.toml`: dictionary and black-square edge.
-    pub fn manifest_table(&self) -> toml::Value {
-        let mut t = toml::Table::new();
-        let canon = dictionary(&self.config.dictionary)
-            .map_or_else(|| self.config.dictionary.clone(), |d| d.0.to_string());
-        t.insert("dictionary".into(), canon.into());
-        t.insert("size_m".into(), self.config.size_m.into());
-        toml::Value::Table(t)
+    fn supersample(&self) -> u32 {
+        self.config.supersample
     }
 }
 

@@ -35,7 +35,7 @@ pub mod render;
 pub mod scene;
 
 pub use analytic::{demo_scene, split_overlapping};
-pub use board::{SimBoard, SimBoardConfig};
+pub use board::{SimBoard, SimBoardConfig, TablePrint};
 pub use camera::{Resolution, SimCamera};
 pub use cell::{simulate_cell, SimCell, SimConfig, SimRobot, WriteStats};
 pub use marker::{marker_code, SimMarker, SimMarkers, SimMarkersConfig};

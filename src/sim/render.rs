@@ -5,6 +5,7 @@
 //! against the bodies whose projected rectangle holds it. Every random draw comes from a stream seeded by the
 //! frame seed and the pixel index, so a frame is bit-identical at any thread count.
 
+use super::board::TablePrint;
 use super::camera::SimCamera;
 use super::convert::to_pose;
 use super::noise::NoiseConfig;
