@@ -114,7 +114,7 @@ fn bench(c: &mut Criterion) {
 /// projection, depth views) and the free-space test of one hypothesis.
 fn cell(c: &mut Criterion) {
     use depthcal::calibration::robot_to_robot::CalibrateConfig;
-    use depthcal::calibration::visibility::{free_space_violation, VisibilityConfig};
+    use depthcal::calibration::visibility::{free_space_violation, RobotSight, VisibilityConfig};
     use depthcal::cell::{Cell, GroundTruth};
     use depthcal::fusion::fuse_robot;
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("clouds/demo-cell");
@@ -139,17 +139,10 @@ fn cell(c: &mut Criterion) {
     let a = fuse_robot(&cell.robots[0], &fcfg, &|_| {}).unwrap();
     let o = fuse_robot(&cell.robots[1], &fcfg, &|_| {}).unwrap();
     let vcfg = VisibilityConfig::default();
+    let (sa, so) = (a.sight_directions(), o.sight_directions());
+    let (ra, ro) = (RobotSight::of(&a, &sa), RobotSight::of(&o, &so));
     g.bench_function("free_space_violation", |b| {
-        b.iter(|| {
-            black_box(free_space_violation(
-                &a.cloud.points,
-                &a.views,
-                &o.cloud.points,
-                &o.views,
-                &truth,
-                &vcfg,
-            ))
-        })
+        b.iter(|| black_box(free_space_violation(&ra, &ro, &truth, &vcfg)))
     });
     g.finish();
 }

@@ -155,6 +155,7 @@ impl Initializer for CheckerboardInitializer {
                 side(&self.reference),
                 side(&self.other)
             ),
+            ambiguity: None,
         })
     }
 }

@@ -335,6 +335,7 @@ impl Initializer for FeatureInitializer {
                 pairs.len(),
                 self.summary
             ),
+            ambiguity: None,
         })
     }
 }

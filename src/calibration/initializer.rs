@@ -4,10 +4,11 @@
 //! is another; the checkerboard, marker and 2D-feature methods plug in here too.
 
 use crate::calibration::visibility::{
-    free_space_violation, self_consistent_margin, VisibilityConfig,
+    free_space_violation, self_consistent_margin, RobotSight, VisibilityConfig,
 };
 use crate::error::Result;
 use crate::fusion::FusedCloud;
+use crate::registration::pipeline::Ambiguity;
 use crate::registration::{register_with_prior, HypothesisPrior, PoseConstraint, RegisterConfig};
 use nalgebra::{Isometry3, Matrix6, Vector6};
 
@@ -34,6 +35,8 @@ pub struct InitialGuess {
     pub sigma_translation_m: f64,
     /// A short description of how it was obtained.
     pub detail: String,
+    /// A far-away second answer that the data supports almost as well (initialisers that search).
+    pub ambiguity: Option<Ambiguity>,
 }
 
 impl InitialGuess {
@@ -90,18 +93,13 @@ impl Initializer for GlobalRegistration {
         // Only the global stage: one coarse ICP level is enough for a starting point.
         cfg.icp_levels = 1;
         let (reference, other) = (input.reference, input.other);
+        let (rs, os) = (sight(reference, cfg.sided), sight(other, cfg.sided));
         let vis = self
             .visibility
             .as_ref()
             .filter(|_| !reference.views.is_empty() && !other.views.is_empty())
             .map(|v| {
-                let (margin_m, own) = self_consistent_margin(
-                    &reference.cloud.points,
-                    &reference.views,
-                    &other.cloud.points,
-                    &other.views,
-                    v,
-                );
+                let (margin_m, own) = self_consistent_margin(&rs, &os, v);
                 log::info!(
                     "free-space margin {:.1} mm (each robot's own frames disagree with its cloud at {:.1}%)",
                     margin_m * 1e3,
@@ -114,14 +112,7 @@ impl Initializer for GlobalRegistration {
             });
         let prior = |t: &Isometry3<f64>| -> f64 {
             let v = vis.as_ref().expect("only used with views");
-            let f = free_space_violation(
-                &reference.cloud.points,
-                &reference.views,
-                &other.cloud.points,
-                &other.views,
-                t,
-                v,
-            );
+            let f = free_space_violation(&rs, &os, t, v);
             (-f / v.penalty_scale).exp()
         };
         let r = register_with_prior(
@@ -145,6 +136,7 @@ impl Initializer for GlobalRegistration {
                 "FPFH + RANSAC: {} correspondences, {} inliers, {} samples, fitness {:.3}, voxel {:.4} m",
                 g.correspondences, g.inliers, g.iterations, g.fitness, r.voxel
             ),
+            ambiguity: r.ambiguity.clone(),
         })
     }
 }
@@ -171,6 +163,20 @@ impl Initializer for UserGuess {
             sigma_rotation_deg: 5.0,
             sigma_translation_m: 0.05,
             detail: format!("user guess from {}", self.source),
+            ambiguity: None,
         })
+    }
+}
+
+/// The free-space test's view of a fused cloud: its normals are its sides when the registration is sided.
+fn sight(f: &FusedCloud, sided: bool) -> RobotSight<'_> {
+    RobotSight {
+        points: &f.cloud.points,
+        sides: f
+            .cloud
+            .normals
+            .as_deref()
+            .filter(|s| sided && s.len() == f.cloud.points.len()),
+        views: &f.views,
     }
 }

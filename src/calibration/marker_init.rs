@@ -440,6 +440,7 @@ impl Initializer for MarkerInitializer {
                 side(&self.reference),
                 side(&self.other)
             ),
+            ambiguity: None,
         })
     }
 }

@@ -18,7 +18,7 @@ use std::time::Instant;
 
 /// Settings of [`calibrate`].
 #[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct CalibrateConfig {
     /// Fusion of each robot's frames (default: automatic voxel at 4 pixel footprints, no outlier removal
     /// (the trimmed ICP and the robust kernel deal with stray points), no normals (registration estimates
@@ -76,6 +76,8 @@ impl Default for CalibrateConfig {
                 // GICP on fused cells leaves a smaller systematic part than the generic floor assumes:
                 // with 0.12 voxel the normalised errors of seeded cells had an RMS of 0.21 (`cell_sweep`).
                 systematic_voxel_fraction: 0.04,
+                // Fused clouds know which side each surface was seen from.
+                sided: true,
                 ..RegisterConfig::default()
             },
             use_priors: true,
@@ -190,9 +192,13 @@ pub fn fuse_cell(cell: &Cell, cfg: &CalibrateConfig) -> Result<FusedCell> {
     // Both robots at once: each fusion has sequential parts (index builds, voxel merges).
     let fuse = |r: &CellRobot| -> Result<FusedCloud> { fuse_robot(r, &cfg.fuse, &|_| {}) };
     let (ref_cloud, other_cloud) = rayon::join(|| fuse(reference), || fuse(other));
+    let (mut ref_cloud, mut other_cloud) = (ref_cloud?, other_cloud?);
+    // The side each surface was seen from travels with the points as their normals.
+    ref_cloud.make_sided();
+    other_cloud.make_sided();
     Ok(FusedCell {
-        reference: ref_cloud?,
-        other: other_cloud?,
+        reference: ref_cloud,
+        other: other_cloud,
         priors,
         fuse_ms: t0.elapsed().as_secs_f64() * 1e3,
     })

@@ -46,26 +46,73 @@ impl Default for VisibilityConfig {
     }
 }
 
-/// The fraction of `points` (in the frame that `t_views_points` maps from) that some view saw through,
-/// among those that some view saw at all (in free space, on a surface, or behind one); 0 when no point falls
-/// in a view.
+/// One robot's side of the free-space test: its fused points (base frame), optionally the side each was
+/// seen from (unit directions toward its cameras, [`crate::fusion::FusedCloud::sight_directions`]), and its
+/// frames' depth views.
+#[derive(Clone, Copy, Debug)]
+pub struct RobotSight<'a> {
+    /// Fused points, base frame, metres.
+    pub points: &'a [[f32; 3]],
+    /// Per point, a unit direction toward the cameras that saw it (optional).
+    pub sides: Option<&'a [[f32; 3]]>,
+    /// The robot's frames' depth views.
+    pub views: &'a [DepthView],
+}
+
+impl<'a> RobotSight<'a> {
+    /// A robot's fused cloud as the free-space test sees it (with sides when the cloud has viewpoints).
+    pub fn of(fused: &'a crate::fusion::FusedCloud, sides: &'a [[f32; 3]]) -> Self {
+        RobotSight {
+            points: &fused.cloud.points,
+            sides: (sides.len() == fused.cloud.points.len()).then_some(sides),
+            views: &fused.views,
+        }
+    }
+}
+
+/// A surface point that a camera sees at its own depth but from behind (its side faces away from the
+/// camera by more than this cosine) cannot be what the camera saw.
+const BACKFACE_COS: f64 = -0.2;
+
+/// The fraction of `cloud`'s points (in the frame that `t_views_points` maps from) that some view of
+/// `views` saw through, or saw at their depth from the side opposite to the one they were seen from (when
+/// `cloud` has sides), among those that some view saw at all (in free space, on a surface, or behind one);
+/// 0 when no point falls in a view.
 pub fn violation_fraction(
-    points: &[[f32; 3]],
+    cloud: &RobotSight,
     t_views_points: &Isometry3<f64>,
     views: &[DepthView],
     cfg: &VisibilityConfig,
 ) -> f64 {
+    let points = cloud.points;
     let step = points.len().div_ceil(cfg.sample_points.max(1)).max(1);
-    let (free, decided) = points
-        .par_iter()
+    let centres: Vec<nalgebra::Point3<f64>> = views
+        .iter()
+        .map(|v| nalgebra::Point3::from(v.t_cam_base.inverse().translation.vector))
+        .collect();
+    let (free, decided) = (0..points.len())
+        .into_par_iter()
         .step_by(step)
-        .map(|p| {
-            let q = t_views_points * to_p64(p);
+        .map(|i| {
+            let q = t_views_points * to_p64(&points[i]);
+            let side = cloud
+                .sides
+                .map(|s| t_views_points.rotation * to_p64(&s[i]).coords);
             let mut seen = false;
-            for v in views {
+            for (v, c) in views.iter().zip(&centres) {
                 match v.classify(&q, cfg.margin_m) {
                     Seen::FreeSpace => return (1usize, 1usize),
                     Seen::Unknown => {}
+                    Seen::Surface => {
+                        if let Some(n) = side {
+                            let to_cam = c - q;
+                            let len = to_cam.norm();
+                            if n.norm() > 0.5 && len > 0.0 && n.dot(&to_cam) < BACKFACE_COS * len {
+                                return (1, 1);
+                            }
+                        }
+                        seen = true;
+                    }
                     _ => seen = true,
                 }
             }
@@ -82,15 +129,13 @@ pub fn violation_fraction(
 /// Free-space violations of `T_base1_base2` both ways: the other robot's points against the reference
 /// robot's views and the reference's points against the other's views; the mean of the two fractions.
 pub fn free_space_violation(
-    reference_points: &[[f32; 3]],
-    reference_views: &[DepthView],
-    other_points: &[[f32; 3]],
-    other_views: &[DepthView],
+    reference: &RobotSight,
+    other: &RobotSight,
     t_base1_base2: &Isometry3<f64>,
     cfg: &VisibilityConfig,
 ) -> f64 {
-    let a = violation_fraction(other_points, t_base1_base2, reference_views, cfg);
-    let b = violation_fraction(reference_points, &t_base1_base2.inverse(), other_views, cfg);
+    let a = violation_fraction(other, t_base1_base2, reference.views, cfg);
+    let b = violation_fraction(reference, &t_base1_base2.inverse(), other.views, cfg);
     0.5 * (a + b)
 }
 
@@ -99,10 +144,8 @@ pub fn free_space_violation(
 /// `cfg.max_self_violation` (see [`VisibilityConfig::max_self_violation`]); returns it with the worse
 /// self-violation there.
 pub fn self_consistent_margin(
-    reference_points: &[[f32; 3]],
-    reference_views: &[DepthView],
-    other_points: &[[f32; 3]],
-    other_views: &[DepthView],
+    reference: &RobotSight,
+    other: &RobotSight,
     cfg: &VisibilityConfig,
 ) -> (f64, f64) {
     let id = Isometry3::identity();
@@ -112,8 +155,12 @@ pub fn self_consistent_margin(
             margin_m: m,
             ..cfg.clone()
         };
-        let own = violation_fraction(reference_points, &id, reference_views, &c)
-            .max(violation_fraction(other_points, &id, other_views, &c));
+        let own = violation_fraction(reference, &id, reference.views, &c).max(violation_fraction(
+            other,
+            &id,
+            other.views,
+            &c,
+        ));
         if own <= cfg.max_self_violation || m * 1.5 > 20.0 * cfg.margin_m {
             return (m, own);
         }

@@ -17,7 +17,7 @@ pub type Fpfh = [f32; FPFH_BINS];
 
 /// Parameters of [`compute_fpfh`].
 #[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct FpfhConfig {
     /// Neighbourhood radius in cloud units (the pipeline uses 5 × voxel).
     pub radius: f64,

@@ -185,6 +185,44 @@ pub struct FusedCloud {
     pub views: Vec<DepthView>,
 }
 
+impl FusedCloud {
+    /// Unit direction from each point toward its mean camera centre ([`FusedCloud::viewpoints`]): the side
+    /// each surface was seen from. A point whose viewpoint coincides with it (never for real frames) gets
+    /// a zero vector. Empty when the cloud has no viewpoints.
+    pub fn sight_directions(&self) -> Vec<[f32; 3]> {
+        if self.viewpoints.len() != self.cloud.points.len() {
+            return Vec::new();
+        }
+        self.cloud
+            .points
+            .iter()
+            .zip(&self.viewpoints)
+            .map(|(p, v)| {
+                let d = [v[0] - p[0], v[1] - p[1], v[2] - p[2]];
+                let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                if n > 0.0 && n.is_finite() {
+                    [d[0] / n, d[1] / n, d[2] / n]
+                } else {
+                    [0.0; 3]
+                }
+            })
+            .collect()
+    }
+
+    /// Gives the cloud normals that carry the side each surface was seen from, unless it has normals
+    /// already (fusion's own normals face the cameras too): its sight directions. Returns whether the
+    /// cloud now has sided normals.
+    pub fn make_sided(&mut self) -> bool {
+        if self.cloud.normals.is_none() {
+            let s = self.sight_directions();
+            if s.len() == self.cloud.points.len() && !s.is_empty() {
+                self.cloud.normals = Some(s);
+            }
+        }
+        self.cloud.normals.is_some()
+    }
+}
+
 /// One frame to fuse: its depth image and `T_base_cam`.
 #[derive(Clone, Copy, Debug)]
 pub struct FrameInput<'a> {

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 
 /// Parameters of [`estimate_normals`].
 #[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct NormalConfig {
     /// Search radius in cloud units; `None` uses the `k` nearest neighbours with no radius limit.
     pub radius: Option<f64>,

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 /// Parameters of the automatic voxel choice.
 #[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct ScaleConfig {
     /// Number of points the global-registration voxel grid should leave in each cloud (default 5000).
     pub target_points: usize,

@@ -15,7 +15,7 @@ pub struct Correspondence {
 
 /// How feature matches are filtered.
 #[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct MatchConfig {
     /// Keep only mutual nearest neighbours (default true). If fewer than `min_mutual` survive, the
     /// one-way matches of both directions are used instead (as Open3D does).

@@ -93,7 +93,7 @@ impl Default for Trim {
 
 /// Parameters of one ICP run at one resolution.
 #[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct IcpConfig {
     /// Residual type (default point-to-plane).
     pub factor: IcpFactor,
@@ -117,6 +117,10 @@ pub struct IcpConfig {
     /// both clouds, ignored otherwise). `None` (default) uses every pair. Rejects pairs between different
     /// surfaces, e.g. a face one robot saw with the edge of a face the other saw.
     pub max_normal_angle_deg: Option<f64>,
+    /// Both clouds' normals carry the side their surfaces were seen from (they point toward the sensors):
+    /// the normal test above becomes signed, and pairs whose normals point to opposite sides are never
+    /// used even without `max_normal_angle_deg` (default false).
+    pub sided: bool,
 }
 
 impl Default for IcpConfig {
@@ -132,6 +136,7 @@ impl Default for IcpConfig {
             rotation_tolerance: 1e-5,
             translation_tolerance: 0.0,
             max_normal_angle_deg: None,
+            sided: false,
         }
     }
 }
@@ -331,9 +336,12 @@ pub fn icp(
         },
     };
     let (source_pts, target_pts) = (source.points, target.points);
-    // Normal compatibility: |cos| of the largest angle allowed, with both clouds' normals.
+    // Normal compatibility: cos of the largest angle allowed, with both clouds' normals; sign-free unless
+    // the clouds are sided, where opposite sides never pair.
+    let sided = cfg.sided;
     let compat = match (cfg.max_normal_angle_deg, source.normals, normals) {
         (Some(a), Some(ns), Some(nt)) => Some((a.to_radians().cos() as f32, ns, nt)),
+        (None, Some(ns), Some(nt)) if sided => Some((0.0, ns, nt)),
         _ => None,
     };
     let maxd2 = (cfg.max_correspondence_distance * cfg.max_correspondence_distance) as f32;
@@ -360,7 +368,7 @@ pub fn icp(
                     let dot: f32 = (0..3)
                         .map(|r| (m[r][0] * n[0] + m[r][1] * n[1] + m[r][2] * n[2]) * nt[r])
                         .sum();
-                    if dot.abs() < cmin {
+                    if (if sided { dot } else { dot.abs() }) < cmin {
                         return None;
                     }
                 }

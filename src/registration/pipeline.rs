@@ -14,7 +14,7 @@ use crate::preprocess::voxel::voxel_downsample;
 use crate::registration::correspondence::{match_features, MatchConfig};
 use crate::registration::icp::{icp, IcpCloud, IcpConfig, IcpFactor, IcpResult};
 use crate::registration::quality::{covariance, degeneracy, Degeneracy};
-use crate::registration::ransac::{ransac, RansacConfig};
+use crate::registration::ransac::{ransac_sided, RansacConfig, SideNormals};
 use crate::registration::verify::{verify_candidates, HypothesisPrior, VerifyConfig};
 use nalgebra::{Isometry3, Matrix6, Vector3};
 use rayon::prelude::*;
@@ -24,7 +24,7 @@ use std::time::Instant;
 /// Everything `register` can be told. Scale-dependent values are multiples of the voxel size, which is
 /// itself chosen from the data unless given.
 #[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct RegisterConfig {
     /// Voxel size of the global stage (cloud units); `None` chooses it from the data.
     pub voxel: Option<f64>,
@@ -70,6 +70,22 @@ pub struct RegisterConfig {
     /// Systematic uncertainty added to the covariance: 1-σ translation as a fraction of the finest ICP voxel
     /// (default 0.12), and that over three times the RMS radius of the matched points as rotation (radians).
     pub systematic_voxel_fraction: f64,
+    /// The input clouds' normals carry the side each surface was seen from: they point toward the sensors
+    /// that saw it (a fused cell cloud's sight directions, see
+    /// [`crate::fusion::FusedCloud::sight_directions`]). Every level's normals are then oriented to agree
+    /// with them (through downsampling, FPFH and every ICP level), and surfaces seen from opposite sides are
+    /// never paired: not in RANSAC's samples, not in verification, not in ICP. A flipped solution (a table
+    /// seen from above laid onto one seen from below) is then impossible. Needs normals on both clouds
+    /// (default false: normals are estimated and their sign is chosen locally).
+    pub sided: bool,
+    /// A runner-up hypothesis farther than `ambiguity_min_deg` or `ambiguity_min_voxels` from the best that
+    /// scores at least this fraction of the best's verification score makes the result ambiguous (default
+    /// 0.9).
+    pub ambiguity_ratio: f64,
+    /// How far a runner-up must be from the best to count as another answer, degrees (default 2).
+    pub ambiguity_min_deg: f64,
+    /// The same in translation, global voxels (default 3).
+    pub ambiguity_min_voxels: f64,
     /// Random seed of every randomised step.
     pub seed: u64,
 }
@@ -95,9 +111,29 @@ impl Default for RegisterConfig {
             icp_max_source_points: 20_000,
             degeneracy_threshold: 6e-4,
             systematic_voxel_fraction: 0.12,
+            sided: false,
+            ambiguity_ratio: 0.9,
+            ambiguity_min_deg: 2.0,
+            ambiguity_min_voxels: 3.0,
             seed: 0,
         }
     }
+}
+
+/// Two answers that the data supports almost equally: the global stage's best hypothesis and a runner-up
+/// far from it.
+#[derive(Clone, Debug, Serialize)]
+pub struct Ambiguity {
+    /// The runner-up transform (same convention as the result's), after its verification ICP.
+    pub runner_up: Isometry3<f64>,
+    /// Its verification score over the best's, 0–1.
+    pub score_ratio: f64,
+    /// The best's verification score.
+    pub best_score: f64,
+    /// Rotation between the best and the runner-up, degrees.
+    pub rotation_deg: f64,
+    /// Translation between them (cloud units).
+    pub translation: f64,
 }
 
 /// A summary of the global stage.
@@ -149,6 +185,15 @@ pub struct Registration {
     pub timings_ms: Vec<(String, f64)>,
     /// Things the user should know (dropped points, degeneracy, non-convergence...).
     pub warnings: Vec<String>,
+    /// A far-away runner-up of the global stage that scored almost as well, if there was one.
+    pub ambiguity: Option<Ambiguity>,
+    /// Fraction of the finest level's source points that lie on a target surface after the final
+    /// transform: point-to-plane distance below half the finest voxel and normals within 30° (signed when
+    /// [`RegisterConfig::sided`]). A match of the same surfaces reaches about the shared fraction; clouds
+    /// that merely interpenetrate (two random clouds, unrelated scenes) stay low.
+    pub surface_agreement: f64,
+    /// The finest ICP voxel (cloud units).
+    pub finest_voxel: f64,
 }
 
 struct Timer {
@@ -192,6 +237,8 @@ fn prepare_level(
     covariances: bool,
 ) -> Result<Level> {
     let mut down = voxel_downsample(cloud, voxel)?;
+    // Sided clouds: the input normals (averaged per voxel) say which side each surface was seen from.
+    let hints = if cfg.sided { down.normals.take() } else { None };
     down.normals = None;
     let index = KdIndex::new(&down.points);
     let ncfg = NormalConfig {
@@ -204,7 +251,9 @@ fn prepare_level(
     } else {
         (estimate_normals(&down.points, &index, &ncfg), None)
     };
-    if for_features {
+    if let Some(h) = &hints {
+        orient_to_hints(&mut normals, h);
+    } else if for_features {
         let orientation = cfg
             .orientation
             .unwrap_or(Orientation::LocalCentroid(cfg.fpfh_radius_voxels * voxel));
@@ -216,6 +265,15 @@ fn prepare_level(
         index,
         covariances: cov,
     })
+}
+
+/// Flips each normal that points away from its hint (a direction toward the sensors that saw the point).
+fn orient_to_hints(normals: &mut [[f32; 3]], hints: &[[f32; 3]]) {
+    normals.par_iter_mut().zip(hints).for_each(|(n, h)| {
+        if n[0] * h[0] + n[1] * h[1] + n[2] * h[2] < 0.0 {
+            *n = [-n[0], -n[1], -n[2]];
+        }
+    });
 }
 
 fn check_cloud(c: &PointCloud, what: &str) -> Result<()> {
@@ -286,6 +344,13 @@ pub fn register_with_prior(
     }
     check_cloud(&src, "source")?;
     check_cloud(&tgt, "target")?;
+    if cfg.sided && (src.normals.is_none() || tgt.normals.is_none()) {
+        return Err(Error::Config {
+            field: "sided".into(),
+            msg: "sided registration needs normals on both clouds, pointing toward the sensors"
+                .into(),
+        });
+    }
     // Scale.
     let spacing = [
         estimate_spacing(&src.points)?,
@@ -320,6 +385,7 @@ pub fn register_with_prior(
     let t0 = prepare_level(&tgt, voxel, cfg, init.is_none(), gicp)?;
     timer.lap("downsample_normals");
     progress("features");
+    let mut ambiguity = None;
     let (initial, global) = match init {
         Some(t) => (*t, None),
         None => {
@@ -349,7 +415,20 @@ pub fn register_with_prior(
                 seed: cfg.seed,
                 ..cfg.ransac.clone()
             };
-            let mut r = ransac(&s0.cloud.points, &t0.cloud.points, &t0.index, &corr, &rcfg)?;
+            let sides = cfg.sided.then(|| SideNormals {
+                source: s0.cloud.normals.as_deref().expect("level normals"),
+                target: t0.cloud.normals.as_deref().expect("level normals"),
+                // Matched points of one surface agree to far better than 60°; opposite sides are ~180°.
+                min_cos: 0.5,
+            });
+            let mut r = ransac_sided(
+                &s0.cloud.points,
+                &t0.cloud.points,
+                &t0.index,
+                &corr,
+                &rcfg,
+                sides,
+            )?;
             timer.lap("ransac");
             if let Some(vcfg) = &cfg.verify {
                 progress("verifying hypotheses");
@@ -377,11 +456,13 @@ pub fn register_with_prior(
                     voxel,
                     &rcfg.constraint,
                     prior,
+                    cfg.sided,
                     vcfg,
                 );
                 for c in v.iter_mut() {
                     c.candidate = order[c.candidate];
                 }
+                ambiguity = find_ambiguity(&v[..vcfg.refine_top.max(1).min(v.len())], voxel, cfg);
                 if let Some(best) = v.first().filter(|b| b.score > 0.0) {
                     log::info!(
                         "verification: candidate {} of {} wins with score {:.3} (RANSAC's choice: {:.3})",
@@ -421,7 +502,7 @@ pub fn register_with_prior(
     let mut t = initial;
     let mut converged = true;
     let mut iterations = 0;
-    let mut last: Option<(IcpResult, Vec<[f32; 3]>)> = None;
+    let mut last: Option<(IcpResult, Vec<[f32; 3]>, f64)> = None;
     let mut finest_voxel = voxel;
     let mut coarse_degeneracy = None;
     let levels = cfg.icp_levels.max(1);
@@ -438,7 +519,7 @@ pub fn register_with_prior(
         let (sl, tl) = if level == 0 {
             (None, None)
         } else {
-            let sl = if gicp || cfg.icp.max_normal_angle_deg.is_some() {
+            let sl = if gicp || cfg.icp.max_normal_angle_deg.is_some() || cfg.sided {
                 prepare_level(&src, v, cfg, false, gicp)?
             } else {
                 let cloud = voxel_downsample(&src, v)?;
@@ -470,6 +551,7 @@ pub fn register_with_prior(
         let icfg = IcpConfig {
             max_correspondence_distance: cfg.icp_distance_voxels * v,
             translation_tolerance: 1e-3 * v,
+            sided: cfg.sided || cfg.icp.sided,
             ..cfg.icp.clone()
         };
         let prep_ms = level_start.elapsed().as_secs_f64() * 1e3;
@@ -514,13 +596,14 @@ pub fn register_with_prior(
         t = r.transform;
         converged &= r.converged;
         iterations += r.iterations;
-        last = Some((r, s_sub));
+        let agreement = surface_agreement(&s_sub, s_nrm.as_deref(), tlev, &t, 0.5 * v, cfg.sided);
+        last = Some((r, s_sub, agreement));
         finest_voxel = v;
         if last_level {
             break;
         }
     }
-    let (r, s_sub) = last.expect("at least one ICP level");
+    let (r, s_sub, agreement) = last.expect("at least one ICP level");
     timer.lap("icp");
 
     // Quality.
@@ -569,7 +652,78 @@ pub fn register_with_prior(
         global_points: [s0.cloud.len(), t0.cloud.len()],
         timings_ms: timer.out,
         warnings,
+        ambiguity,
+        surface_agreement: agreement,
+        finest_voxel,
     })
+}
+
+/// The first of the fully verified candidates (best first) that lies far from the best and scores almost
+/// as well, as an [`Ambiguity`].
+fn find_ambiguity(
+    verified: &[crate::registration::verify::Verified],
+    voxel: f64,
+    cfg: &RegisterConfig,
+) -> Option<Ambiguity> {
+    let best = verified.first().filter(|b| b.score > 0.0)?;
+    verified[1..].iter().find_map(|v| {
+        let (rot_deg, trans) =
+            crate::geometry::transform::pose_error(&v.transform, &best.transform);
+        let far = rot_deg > cfg.ambiguity_min_deg || trans > cfg.ambiguity_min_voxels * voxel;
+        let ratio = v.score / best.score;
+        (far && ratio >= cfg.ambiguity_ratio).then_some(Ambiguity {
+            runner_up: v.transform,
+            score_ratio: ratio,
+            best_score: best.score,
+            rotation_deg: rot_deg,
+            translation: trans,
+        })
+    })
+}
+
+/// Fraction of `source` points (mapped by `t`) whose nearest target point has a point-to-plane distance
+/// below `tau` and a normal within 30° of theirs (signed when `sided`); without source normals only the
+/// distance counts.
+fn surface_agreement(
+    source: &[[f32; 3]],
+    source_normals: Option<&[[f32; 3]]>,
+    target: &Level,
+    t: &Isometry3<f64>,
+    tau: f64,
+    sided: bool,
+) -> f64 {
+    let Some(tn) = target.cloud.normals.as_deref() else {
+        return f64::NAN;
+    };
+    if source.is_empty() {
+        return 0.0;
+    }
+    let cos_max = 30f64.to_radians().cos();
+    let reach2 = (4.0 * tau * tau) as f32;
+    let hits = source
+        .par_iter()
+        .enumerate()
+        .filter(|(i, p)| {
+            let pw = crate::geometry::cloud::transform_point(t, p);
+            let Some((j, d2)) = target.index.nearest(&pw) else {
+                return false;
+            };
+            if d2 > reach2 {
+                return false;
+            }
+            let nt = to_v64(&tn[j]);
+            if let Some(sn) = source_normals {
+                let c = (t.rotation * to_v64(&sn[*i])).dot(&nt);
+                if (if sided { c } else { c.abs() }) < cos_max {
+                    return false;
+                }
+            }
+            nt.dot(&(to_v64(&pw) - to_v64(&target.cloud.points[j])))
+                .abs()
+                < tau
+        })
+        .count();
+    hits as f64 / source.len() as f64
 }
 
 /// Centroid of `points` and their RMS distance from it (metres).

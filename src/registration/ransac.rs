@@ -33,7 +33,7 @@ use serde::{Deserialize, Serialize};
 /// Prior knowledge about the answer, used to reject hypotheses before they are scored. In a robot cell:
 /// both bases upright (the transform is nearly a rotation about z) and a rough distance between them.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct PoseConstraint {
     /// Largest angle between `R·z` and `z` (degrees): the tilt of the transform's rotation.
     pub max_tilt_deg: Option<f64>,
@@ -67,7 +67,7 @@ impl PoseConstraint {
 
 /// Parameters of [`ransac`].
 #[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct RansacConfig {
     /// A correspondence is an inlier when `‖T·p − q‖` is below this (cloud units; the pipeline uses
     /// 1.5 × voxel). Must be set.
@@ -249,6 +249,31 @@ pub fn ransac(
     corr: &[Correspondence],
     cfg: &RansacConfig,
 ) -> Result<RansacResult> {
+    ransac_sided(source, target, target_index, corr, cfg, None)
+}
+
+/// Normals that carry the side each surface was seen from (they point toward the sensors), one per point
+/// of each cloud: a hypothesis that maps a sampled match's source normal onto the opposite side of its
+/// target normal (a surface seen from above laid onto one seen from below) is discarded.
+#[derive(Clone, Copy, Debug)]
+pub struct SideNormals<'a> {
+    /// Source normals.
+    pub source: &'a [[f32; 3]],
+    /// Target normals.
+    pub target: &'a [[f32; 3]],
+    /// Smallest cosine between a sampled match's mapped source normal and its target normal.
+    pub min_cos: f32,
+}
+
+/// As [`ransac`], with `sides`: every sampled match must keep its surface's side under the hypothesis.
+pub fn ransac_sided(
+    source: &[[f32; 3]],
+    target: &[[f32; 3]],
+    target_index: &KdIndex,
+    corr: &[Correspondence],
+    cfg: &RansacConfig,
+    sides: Option<SideNormals>,
+) -> Result<RansacResult> {
     if cfg.inlier_distance.is_nan() || cfg.inlier_distance <= 0.0 {
         return Err(Error::Config {
             field: "ransac.inlier_distance".into(),
@@ -289,6 +314,23 @@ pub fn ransac(
         dp.min(dq) >= sim * dp.max(dq)
     };
 
+    let side_pairs: Option<(Vec<[f32; 3]>, Vec<[f32; 3]>, f32)> = sides.map(|sd| {
+        (
+            corr.iter().map(|c| sd.source[c.source as usize]).collect(),
+            corr.iter().map(|c| sd.target[c.target as usize]).collect(),
+            sd.min_cos,
+        )
+    });
+    let keeps_sides = |t: &Isometry3<f64>, sample: &[usize]| -> bool {
+        let Some((ns, nt, min_cos)) = &side_pairs else {
+            return true;
+        };
+        sample.iter().all(|&k| {
+            let n = t.rotation * nalgebra::Vector3::new(ns[k][0], ns[k][1], ns[k][2]).cast::<f64>();
+            let m = nalgebra::Vector3::new(nt[k][0], nt[k][1], nt[k][2]).cast::<f64>();
+            n.dot(&m) >= *min_cos as f64
+        })
+    };
     let (ps_soa, qs_soa) = (Soa::new(&ps), Soa::new(&qs));
     let count_inliers =
         |t: &Isometry3<f64>| -> usize { m_count(&Affine32::from(t), &ps_soa, &qs_soa, tau2) };
@@ -332,7 +374,11 @@ pub fn ransac(
             if !edge_ok(a, b) {
                 return None;
             }
-            yaw_fit(&ps[a], &ps[b], &qs[a], &qs[b], tau)?
+            let t = yaw_fit(&ps[a], &ps[b], &qs[a], &qs[b], tau)?;
+            if !keeps_sides(&t, &[a, b]) {
+                return None;
+            }
+            t
         } else {
             let [a, b, c] = draw(&mut rng, 3)?;
             if !(edge_ok(a, b) && edge_ok(b, c) && edge_ok(a, c)) {
@@ -345,6 +391,9 @@ pub fn ransac(
                 if (t * src[k] - dst[k]).norm() > tau {
                     return None;
                 }
+            }
+            if !keeps_sides(&t, &[a, b, c]) {
+                return None;
             }
             t
         };

@@ -119,7 +119,8 @@ pub type HypothesisPrior<'a> = &'a (dyn Fn(&Isometry3<f64>) -> f64 + Sync);
 /// the result (see the module docs), times `prior` when given; candidates whose refinement leaves
 /// `constraint` score 0. Two stages (see [`VerifyConfig::refine_top`]). Returns the fully refined ones
 /// best first, then the rest (ties keep the candidates' order). `voxel` is the clouds' resolution (cloud
-/// units); both clouds need normals.
+/// units); both clouds need normals. With `sided` the normals carry the side each surface was seen from
+/// (they point toward the sensors): pairs from opposite sides neither steer the short ICP nor score.
 #[allow(clippy::too_many_arguments)]
 pub fn verify_candidates(
     source: &[[f32; 3]],
@@ -131,6 +132,7 @@ pub fn verify_candidates(
     voxel: f64,
     constraint: &PoseConstraint,
     prior: Option<HypothesisPrior>,
+    sided: bool,
     cfg: &VerifyConfig,
 ) -> Vec<Verified> {
     let pick = normal_space_sample(source_normals, cfg.sample_points.max(30));
@@ -148,6 +150,7 @@ pub fn verify_candidates(
         translation_tolerance: 1e-3 * voxel,
         max_iterations: cfg.icp_iterations,
         trim: Trim::default(),
+        sided,
         ..IcpConfig::default()
     };
     let tau = cfg.tight_distance_voxels * voxel;
@@ -168,7 +171,8 @@ pub fn verify_candidates(
                     return 0.0;
                 }
                 let nt = to_v64(&target_normals[j]);
-                if (rot * to_v64(n)).dot(&nt).abs() < cos_max {
+                let cos = (rot * to_v64(n)).dot(&nt);
+                if (if sided { cos } else { cos.abs() }) < cos_max {
                     return 0.0;
                 }
                 let d = nt.dot(&(to_v64(&pw) - to_v64(&target[j]))).abs();
@@ -179,11 +183,17 @@ pub fn verify_candidates(
     };
     let refine = |from: &Isometry3<f64>, step: usize, iterations: usize| -> (Isometry3<f64>, f64) {
         let sub: Vec<[f32; 3]> = pts.iter().step_by(step).copied().collect();
+        let sub_normals: Vec<[f32; 3]> = nrm.iter().step_by(step).copied().collect();
         let c = IcpConfig {
             max_iterations: iterations.max(1),
             ..icfg.clone()
         };
-        let refined = icp(&IcpCloud::points(&sub), &tcloud, target_index, from, &c)
+        let source_cloud = IcpCloud {
+            points: &sub,
+            normals: sided.then_some(sub_normals.as_slice()),
+            covariances: None,
+        };
+        let refined = icp(&source_cloud, &tcloud, target_index, from, &c)
             .map(|r| r.transform)
             .unwrap_or(*from);
         let s = if constraint.accepts(&refined) {
