@@ -169,7 +169,7 @@ impl Initializer for UserGuess {
 }
 
 /// The free-space test's view of a fused cloud: its normals are its sides when the registration is sided.
-fn sight(f: &FusedCloud, sided: bool) -> RobotSight<'_> {
+pub(crate) fn sight(f: &FusedCloud, sided: bool) -> RobotSight<'_> {
     RobotSight {
         points: &f.cloud.points,
         sides: f

@@ -8,7 +8,13 @@
 //! base_distance_tolerance_m = 0.3   # ± (default 0.3 m)
 //! ```
 //!
-//! The priors become a [`PoseConstraint`] on the global stage's hypotheses.
+//! The priors become a [`PoseConstraint`] on the global stage's hypotheses, and a result that violates
+//! them is not trusted.
+//!
+//! **The default.** depthcal's method assumes two robots whose bases stand upright at about the same
+//! level. When `cell.toml` has no `[priors]` table, or leaves `bases_level` out, the bases are *assumed*
+//! level (tilt ≤ 5°) and the report says so; `bases_level = false` states a tilted base, and `calibrate
+//! --no-priors` drops every prior. The base distance is never assumed.
 
 use crate::error::{Error, Result};
 use crate::registration::PoseConstraint;
@@ -18,8 +24,8 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct CellPriors {
-    /// Both robot bases stand upright on a level floor.
-    pub bases_level: bool,
+    /// Both robot bases stand upright on a level floor. Absent: assumed true (see the module docs).
+    pub bases_level: Option<bool>,
     /// Largest tilt of `T_base1_base2` from a pure rotation about z, degrees (default 5 with `bases_level`).
     pub max_tilt_deg: Option<f64>,
     /// Rough distance between the base origins, metres.
@@ -32,23 +38,65 @@ pub struct CellPriors {
 }
 
 impl CellPriors {
-    /// Reads the `[priors]` table from a manifest's extra tables (absent: no priors). `path` names the
-    /// manifest in errors.
+    /// No prior at all (`--no-priors`).
+    pub fn none() -> Self {
+        CellPriors {
+            bases_level: Some(false),
+            ..CellPriors::default()
+        }
+    }
+
+    /// Reads the `[priors]` table from a manifest's extra tables (absent: the default assumption, level
+    /// bases). `path` names the manifest in errors.
     pub fn from_manifest_extra(extra: &toml::Table, path: &std::path::Path) -> Result<Self> {
-        match extra.get("priors") {
-            None => Ok(CellPriors::default()),
+        let p: CellPriors = match extra.get("priors") {
+            None => CellPriors::default(),
             Some(v) => v
                 .clone()
                 .try_into()
-                .map_err(|e| Error::format(path, format!("[priors]: {e}"))),
+                .map_err(|e| Error::format(path, format!("[priors]: {e}")))?,
+        };
+        p.validate()
+            .map_err(|m| Error::format(path, format!("[priors]: {m}")))?;
+        Ok(p)
+    }
+
+    /// Checks the values; the message names the field.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        if let Some(t) = self.max_tilt_deg {
+            if !(t > 0.0 && t <= 180.0) {
+                return Err(format!("max_tilt_deg = {t}: must be in (0, 180] degrees"));
+            }
         }
+        if let Some(d) = self.base_distance_m {
+            if !(d > 0.0 && d.is_finite()) {
+                return Err(format!(
+                    "base_distance_m = {d}: must be a positive distance in metres"
+                ));
+            }
+        }
+        if let Some(d) = self.base_distance_tolerance_m {
+            if !(d > 0.0 && d.is_finite()) {
+                return Err(format!(
+                    "base_distance_tolerance_m = {d}: must be a positive distance in metres"
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// True when the bases are level by assumption (the cell did not say).
+    pub fn level_assumed(&self) -> bool {
+        self.bases_level.is_none()
     }
 
     /// The constraint these priors put on `T_base1_base2`.
     pub fn constraint(&self) -> PoseConstraint {
-        let tilt = self
-            .max_tilt_deg
-            .or(if self.bases_level { Some(5.0) } else { None });
+        let tilt = self.max_tilt_deg.or(if self.bases_level.unwrap_or(true) {
+            Some(5.0)
+        } else {
+            None
+        });
         let range = self.base_distance_m.map(|d| {
             let tol = self.base_distance_tolerance_m.unwrap_or(0.3);
             [(d - tol).max(0.0), d + tol]
@@ -64,7 +112,13 @@ impl CellPriors {
         let c = self.constraint();
         let mut out = Vec::new();
         if let Some(t) = c.max_tilt_deg {
-            out.push(format!("bases level (tilt ≤ {t}°)"));
+            if self.level_assumed() {
+                out.push(format!(
+                    "bases level (tilt ≤ {t}°), assumed: cell.toml does not state bases_level (--no-priors drops it)"
+                ));
+            } else {
+                out.push(format!("bases level (tilt ≤ {t}°)"));
+            }
         }
         if let Some([lo, hi]) = c.translation_range {
             out.push(format!("base distance {lo:.2}–{hi:.2} m"));
@@ -98,6 +152,20 @@ mod tests {
             Isometry3::from_parts(Translation3::new(2.0, 0.0, 0.0), UnitQuaternion::identity());
         assert!(!c.accepts(&far));
         assert_eq!(p.describe().len(), 2);
+        // No table: level bases assumed, no distance.
+        let none = CellPriors::from_manifest_extra(&toml::Table::new(), std::path::Path::new("c"))
+            .unwrap();
+        assert!(none.level_assumed());
+        assert_eq!(none.constraint().max_tilt_deg, Some(5.0));
+        assert!(none.constraint().translation_range.is_none());
+        assert!(
+            none.describe()[0].contains("assumed"),
+            "{:?}",
+            none.describe()
+        );
+        assert!(CellPriors::none().constraint().is_empty());
+        let neg: toml::Table = toml::from_str("[priors]\nbase_distance_m = -1\n").unwrap();
+        assert!(CellPriors::from_manifest_extra(&neg, std::path::Path::new("c")).is_err());
         let bad: toml::Table = toml::from_str("[priors]\nbases_levl = true\n").unwrap();
         let e =
             CellPriors::from_manifest_extra(&bad, std::path::Path::new("cell.toml")).unwrap_err();

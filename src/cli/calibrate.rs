@@ -137,6 +137,14 @@ pub fn run(a: Args) -> Result<()> {
             "degenerate": c.degeneracy.is_degenerate(),
             "degeneracy": c.degeneracy,
             "priors_used": c.priors_used,
+            "priors_assumed": c.priors_assumed,
+            "trusted": c.trust.trusted,
+            "reasons": c.trust.reasons,
+            "suggestions": c.trust.suggestions,
+            "free_space": c.free_space,
+            "ambiguity": c.ambiguity.as_ref().map(|x| serde_json::json!({
+                "runner_up": matrix4_json(&x.runner_up), "score_ratio": x.score_ratio,
+                "rotation_deg": x.rotation_deg, "translation_mm": x.translation * 1e3})),
             "initial": {"transform": matrix4_json(&c.initial.transform), "detail": c.initial.detail,
                         "sigma_rotation_deg": c.initial.sigma_rotation_deg, "sigma_translation_mm": c.initial.sigma_translation_m * 1e3,
                         "error_vs_truth": err(c.initial_error_vs_truth)},
@@ -149,7 +157,7 @@ pub fn run(a: Args) -> Result<()> {
             "total_ms": total_ms,
         });
         println!("{}", serde_json::to_string_pretty(&v)?);
-        return Ok(());
+        return super::gate(&c.trust);
     }
     println!(
         "T_base1_base2: {} base -> {} base ({} frames / {} frames, method {})",
@@ -235,5 +243,33 @@ pub fn run(a: Args) -> Result<()> {
         .map(|(k, v)| format!("{k} {v:.0}"))
         .collect();
     println!("timings (ms)    {}  total {total_ms:.0}", times.join(", "));
-    Ok(())
+    if let Some(f) = &c.free_space {
+        println!(
+            "free space      {:.1}% of the surfaces violate the other robot's views (own frames {:.1}%, margin {:.0} mm)",
+            f.violation * 1e2,
+            f.own_violation * 1e2,
+            f.margin_m * 1e3
+        );
+    }
+    if let Some(x) = &c.ambiguity {
+        println!(
+            "ambiguous       a runner-up {:.2} deg / {:.1} mm away scores {:.0}% of the best:\n{}",
+            x.rotation_deg,
+            x.translation * 1e3,
+            x.score_ratio * 1e2,
+            matrix4_text(&x.runner_up)
+        );
+    }
+    if c.trust.trusted {
+        println!("trusted         yes");
+    } else {
+        println!("trusted         NO");
+        for r in &c.trust.reasons {
+            println!("  because       {r}");
+        }
+        for s in &c.trust.suggestions {
+            println!("  try           {s}");
+        }
+    }
+    super::gate(&c.trust)
 }

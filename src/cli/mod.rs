@@ -74,14 +74,14 @@ pub fn run() -> i32 {
     if let Some(n) = cli.threads {
         if n == 0 {
             eprintln!("error: --threads must be at least 1");
-            return 2;
+            return EXIT_USAGE;
         }
         if let Err(e) = rayon::ThreadPoolBuilder::new()
             .num_threads(n)
             .build_global()
         {
             eprintln!("error: cannot start {n} threads: {e}");
-            return 2;
+            return EXIT_USAGE;
         }
     }
     let result = match cli.command {
@@ -100,9 +100,46 @@ pub fn run() -> i32 {
     };
     match result {
         Ok(()) => 0,
+        Err(e) if e.downcast_ref::<Untrusted>().is_some() => {
+            eprintln!("{e}");
+            EXIT_UNTRUSTED
+        }
         Err(e) => {
             eprintln!("error: {e:#}");
-            1
+            EXIT_ERROR
         }
+    }
+}
+
+/// Exit status of an error: bad input, a missing file, a failed computation.
+pub const EXIT_ERROR: i32 = 1;
+/// Exit status of a command-line usage error (clap's) or a bad global option.
+pub const EXIT_USAGE: i32 = 2;
+/// Exit status of a result that was computed and printed in full but did not pass the quality gate.
+pub const EXIT_UNTRUSTED: i32 = 3;
+
+/// The error a command returns after printing a result that is not trusted: the process exits with
+/// [`EXIT_UNTRUSTED`] and prints the reasons on stderr.
+#[derive(Debug)]
+pub struct Untrusted(pub Vec<String>);
+
+impl std::fmt::Display for Untrusted {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "untrusted result (exit status {EXIT_UNTRUSTED}):")?;
+        for r in &self.0 {
+            write!(f, "\n  - {r}")?;
+        }
+        Ok(())
+    }
+}
+
+impl std::error::Error for Untrusted {}
+
+/// `Ok` for a trusted result, else the [`Untrusted`] error carrying its reasons.
+pub fn gate(trust: &depthcal::registration::Trust) -> anyhow::Result<()> {
+    if trust.trusted {
+        Ok(())
+    } else {
+        Err(Untrusted(trust.reasons.clone()).into())
     }
 }

@@ -65,7 +65,7 @@ pub fn run(a: Args) -> Result<()> {
         )
     })?;
     reg.timings_ms.insert(0, ("read".into(), read_ms));
-    if let Some(out) = &a.output {
+    if let Some(out) = a.output.as_ref().filter(|_| reg.trust.trusted) {
         pb.set_message("writing");
         let t_w = Instant::now();
         let moved = source.transformed(&reg.transform);
@@ -77,6 +77,12 @@ pub fn run(a: Args) -> Result<()> {
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
     for w in &reg.warnings {
         eprintln!("warning: {w}");
+    }
+    if let (Some(out), false) = (&a.output, reg.trust.trusted) {
+        eprintln!(
+            "warning: {} not written: the result is not trusted",
+            out.display()
+        );
     }
     let error = truth.map(|t| depthcal::geometry::transform::pose_error(&reg.transform, &t));
     if a.json {
@@ -110,6 +116,13 @@ pub fn run(a: Args) -> Result<()> {
             "global": g,
             "seed": a.seed,
             "warnings": reg.warnings,
+            "trusted": reg.trust.trusted,
+            "reasons": reg.trust.reasons,
+            "suggestions": reg.trust.suggestions,
+            "surface_agreement": reg.surface_agreement,
+            "ambiguity": reg.ambiguity.as_ref().map(|x| serde_json::json!({
+                "runner_up": matrix4_json(&x.runner_up), "score_ratio": x.score_ratio,
+                "rotation_deg": x.rotation_deg, "translation": x.translation})),
             "error_vs_truth": error.map(|(r, t)| serde_json::json!({"rotation_deg": r, "translation": t})),
             "timings_ms": timings_json(&reg.timings_ms),
             "total_ms": total_ms,
@@ -159,6 +172,22 @@ pub fn run(a: Args) -> Result<()> {
             .map(|(k, v)| format!("{k} {v:.1}"))
             .collect();
         println!("timings (ms): {}  total {total_ms:.1}", times.join(", "));
+        println!(
+            "surface agreement {:.3}  trusted {}",
+            reg.surface_agreement, reg.trust.trusted
+        );
+        if let Some(x) = &reg.ambiguity {
+            println!(
+                "ambiguous: runner-up {:.2} deg / {:.4} away scores {:.0}% of the best:\n{}",
+                x.rotation_deg,
+                x.translation,
+                x.score_ratio * 1e2,
+                matrix4_text(&x.runner_up)
+            );
+        }
+        for s in &reg.trust.suggestions {
+            println!("try: {s}");
+        }
     }
-    Ok(())
+    super::gate(&reg.trust)
 }

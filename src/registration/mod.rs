@@ -13,8 +13,10 @@ pub use ransac::{ransac, PoseConstraint, RansacConfig, RansacResult};
 pub use rigid_fit::rigid_fit;
 pub mod pipeline;
 pub mod quality;
+pub mod trust;
 
 pub use pipeline::{
     register, register_with_prior, register_with_progress, RegisterConfig, Registration,
 };
+pub use trust::{assess_registration, Trust, TrustConfig};
 pub use verify::HypothesisPrior;

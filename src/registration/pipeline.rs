@@ -15,6 +15,7 @@ use crate::registration::correspondence::{match_features, MatchConfig};
 use crate::registration::icp::{icp, IcpCloud, IcpConfig, IcpFactor, IcpResult};
 use crate::registration::quality::{covariance, degeneracy, Degeneracy};
 use crate::registration::ransac::{ransac_sided, RansacConfig, SideNormals};
+use crate::registration::trust::{assess_registration, Trust, TrustConfig};
 use crate::registration::verify::{verify_candidates, HypothesisPrior, VerifyConfig};
 use nalgebra::{Isometry3, Matrix6, Vector3};
 use rayon::prelude::*;
@@ -86,6 +87,8 @@ pub struct RegisterConfig {
     pub ambiguity_min_deg: f64,
     /// The same in translation, global voxels (default 3).
     pub ambiguity_min_voxels: f64,
+    /// The quality gate's thresholds ([`crate::registration::trust`]).
+    pub trust: TrustConfig,
     /// Random seed of every randomised step.
     pub seed: u64,
 }
@@ -115,6 +118,7 @@ impl Default for RegisterConfig {
             ambiguity_ratio: 0.9,
             ambiguity_min_deg: 2.0,
             ambiguity_min_voxels: 3.0,
+            trust: TrustConfig::default(),
             seed: 0,
         }
     }
@@ -194,6 +198,8 @@ pub struct Registration {
     pub surface_agreement: f64,
     /// The finest ICP voxel (cloud units).
     pub finest_voxel: f64,
+    /// Whether the result can be trusted, and why not ([`crate::registration::trust`]).
+    pub trust: Trust,
 }
 
 struct Timer {
@@ -344,6 +350,7 @@ pub fn register_with_prior(
     }
     check_cloud(&src, "source")?;
     check_cloud(&tgt, "target")?;
+    cfg.trust.validate()?;
     if cfg.sided && (src.normals.is_none() || tgt.normals.is_none()) {
         return Err(Error::Config {
             field: "sided".into(),
@@ -636,7 +643,7 @@ pub fn register_with_prior(
         cov[(k + 3, k + 3)] += sys_t * sys_t;
     }
     timer.lap("quality");
-    Ok(Registration {
+    let mut out = Registration {
         transform: t,
         fitness: r.fitness,
         inlier_rmse: r.inlier_rmse,
@@ -655,7 +662,10 @@ pub fn register_with_prior(
         ambiguity,
         surface_agreement: agreement,
         finest_voxel,
-    })
+        trust: Trust::default(),
+    };
+    out.trust = assess_registration(&out, &cfg.trust, "");
+    Ok(out)
 }
 
 /// The first of the fully verified candidates (best first) that lies far from the best and scores almost
