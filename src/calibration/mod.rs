@@ -11,4 +11,5 @@ pub mod initializer;
 pub mod marker_init;
 pub mod priors;
 pub mod robot_to_robot;
+pub mod uncertainty;
 pub mod visibility;

@@ -3,6 +3,9 @@
 
 use crate::calibration::initializer::{sight, InitialGuess, Initializer, InitializerInput};
 use crate::calibration::priors::CellPriors;
+use crate::calibration::uncertainty::{
+    cloud_motion_covariance, inputs_covariance, normalised_error, NormalisedError,
+};
 use crate::calibration::visibility::{
     free_space_violation, self_consistent_margin, VisibilityConfig,
 };
@@ -143,6 +146,11 @@ pub struct Calibration {
     pub ambiguity: Option<crate::registration::pipeline::Ambiguity>,
     /// Whether the result can be trusted, and why not.
     pub trust: Trust,
+    /// The part of `covariance` that the cell's inputs (hand-eyes, pose repeatability, depth scale) add
+    /// ([`crate::calibration::uncertainty`]).
+    pub inputs_covariance: Matrix6<f64>,
+    /// The error against the ground truth normalised by `covariance`, when the cell has a truth.
+    pub normalised_error: Option<NormalisedError>,
 }
 
 /// The free-space test of the final transform.
@@ -335,8 +343,21 @@ pub fn refine_cell(
         priors_assumed: fused.priors.level_assumed() && cfg.use_priors,
         free_space: None,
         trust: Trust::new(),
+        inputs_covariance: Matrix6::zeros(),
+        normalised_error: None,
+    };
+    let inputs = |t: &nalgebra::Isometry3<f64>| {
+        inputs_covariance(
+            t,
+            &cloud_motion_covariance(reference, &ref_cloud.views),
+            &cloud_motion_covariance(other, &other_cloud.views),
+        )
     };
     if !refine {
+        out.inputs_covariance = inputs(&out.transform);
+        out.covariance += out.inputs_covariance;
+        out.normalised_error =
+            truth.and_then(|t| normalised_error(&out.transform, &t, &out.covariance));
         out.trust = calibration_trust(&out, &constraint, None);
         return Ok(out);
     }
@@ -352,7 +373,10 @@ pub fn refine_cell(
     lap("refine", &mut out.timings_ms);
     out.warnings = reg.warnings.clone();
     out.transform = reg.transform;
-    out.covariance = reg.covariance;
+    out.inputs_covariance = inputs(&reg.transform);
+    out.covariance = reg.covariance + out.inputs_covariance;
+    out.normalised_error =
+        truth.and_then(|t| normalised_error(&out.transform, &t, &out.covariance));
     out.refined = true;
     out.fitness = reg.fitness;
     out.inlier_rmse = reg.inlier_rmse;

@@ -138,9 +138,124 @@ pub struct RobotEntry {
     /// Optional colour image path pattern containing `{frame}`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub color: Option<String>,
-    /// Keys this schema version does not know; kept and written back.
+    /// 1-σ of the hand-eye's rotation, degrees (optional; see [`RobotUncertainty`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hand_eye_sigma_deg: Option<f64>,
+    /// 1-σ of the hand-eye's translation, millimetres (optional).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hand_eye_sigma_mm: Option<f64>,
+    /// The robot's pose repeatability at the flange, 1-σ millimetres (optional).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pose_repeatability_mm: Option<f64>,
+    /// The robot's rotational repeatability at the flange, 1-σ degrees (optional).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pose_repeatability_deg: Option<f64>,
+    /// 1-σ of the depth camera's scale error, as a fraction (optional; 0.001 = 0.1%).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth_scale_sigma: Option<f64>,
+    /// Keys this schema version does not know: an error when the manifest is read (kept so that the error
+    /// can name them).
     #[serde(flatten)]
     pub extra: toml::Table,
+}
+
+/// The keys of a `[[robot]]` table.
+pub const ROBOT_KEYS: &[&str] = &[
+    "name",
+    "poses",
+    "pose_format",
+    "intrinsics",
+    "hand_eye",
+    "depth",
+    "color",
+    "hand_eye_sigma_deg",
+    "hand_eye_sigma_mm",
+    "pose_repeatability_mm",
+    "pose_repeatability_deg",
+    "depth_scale_sigma",
+];
+
+/// The top-level keys and tables of `cell.toml`.
+pub const MANIFEST_KEYS: &[&str] = &["format", "reference", "robot", "priors", "board", "markers"];
+
+/// What the cell says, or depthcal assumes, about how uncertain each robot's inputs are; it enters the
+/// covariance of `T_base1_base2`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RobotUncertainty {
+    /// Hand-eye rotation 1-σ, radians (default 0.05°: a good board calibration).
+    pub hand_eye_rotation_rad: f64,
+    /// Hand-eye translation 1-σ, metres (default 0.5 mm).
+    pub hand_eye_translation_m: f64,
+    /// Pose repeatability at the flange, metres (default 0.1 mm: industrial arms state ±0.03–0.1 mm).
+    pub pose_translation_m: f64,
+    /// Rotational pose repeatability at the flange, radians (default 0.01°).
+    pub pose_rotation_rad: f64,
+    /// Depth scale 1-σ, a fraction (default 0.0005).
+    pub depth_scale: f64,
+    /// Which of the values above the cell stated (the others are the defaults).
+    pub stated: Vec<String>,
+}
+
+impl RobotUncertainty {
+    /// The robot entry's values, with the defaults where it says nothing.
+    pub fn from_entry(e: &RobotEntry) -> Self {
+        let mut stated = Vec::new();
+        let mut take = |v: Option<f64>, key: &str, default: f64, scale: f64| match v {
+            Some(x) => {
+                stated.push(key.to_string());
+                x * scale
+            }
+            None => default,
+        };
+        RobotUncertainty {
+            hand_eye_rotation_rad: take(
+                e.hand_eye_sigma_deg,
+                "hand_eye_sigma_deg",
+                0.05f64.to_radians(),
+                1f64.to_radians(),
+            ),
+            hand_eye_translation_m: take(e.hand_eye_sigma_mm, "hand_eye_sigma_mm", 0.5e-3, 1e-3),
+            pose_translation_m: take(
+                e.pose_repeatability_mm,
+                "pose_repeatability_mm",
+                0.1e-3,
+                1e-3,
+            ),
+            pose_rotation_rad: take(
+                e.pose_repeatability_deg,
+                "pose_repeatability_deg",
+                0.01f64.to_radians(),
+                1f64.to_radians(),
+            ),
+            depth_scale: take(e.depth_scale_sigma, "depth_scale_sigma", 5e-4, 1.0),
+            stated,
+        }
+    }
+}
+
+/// The known name closest to `key` when it is a near miss (edit distance at most 2, not equal).
+pub fn near_miss<'a>(key: &str, known: &[&'a str]) -> Option<&'a str> {
+    fn distance(a: &str, b: &str) -> usize {
+        let (a, b): (Vec<char>, Vec<char>) = (a.chars().collect(), b.chars().collect());
+        let mut prev: Vec<usize> = (0..=b.len()).collect();
+        for (i, ca) in a.iter().enumerate() {
+            let mut cur = vec![i + 1; b.len() + 1];
+            for (j, cb) in b.iter().enumerate() {
+                cur[j + 1] = (prev[j] + usize::from(ca != cb))
+                    .min(prev[j + 1] + 1)
+                    .min(cur[j] + 1);
+            }
+            prev = cur;
+        }
+        prev[b.len()]
+    }
+    let k = key.to_ascii_lowercase();
+    known
+        .iter()
+        .map(|&n| (distance(&k, n), n))
+        .filter(|&(d, n)| d > 0 && d <= 2.min(n.len() / 2))
+        .min()
+        .map(|(_, n)| n)
 }
 
 impl RobotEntry {
@@ -155,6 +270,11 @@ impl RobotEntry {
             hand_eye: HandEyeSpec::Inline(t_ee_cam),
             depth: format!("{name}/depth/{FRAME_PLACEHOLDER}.png"),
             color: None,
+            hand_eye_sigma_deg: None,
+            hand_eye_sigma_mm: None,
+            pose_repeatability_mm: None,
+            pose_repeatability_deg: None,
+            depth_scale_sigma: None,
             extra: toml::Table::new(),
         }
     }
@@ -170,7 +290,9 @@ pub struct CellManifest {
     /// The robots (`[[robot]]` tables), in file order.
     #[serde(rename = "robot")]
     pub robots: Vec<RobotEntry>,
-    /// Tables and keys this schema version does not know (e.g. `[priors]`); kept and written back.
+    /// The optional tables (`[priors]`, `[board]`, `[markers]`, read by the methods that use them) and any
+    /// other table, kept and written back. An unknown table that is a near miss of a known one (`[prior]`)
+    /// is an error; other unknown tables get a warning.
     #[serde(flatten)]
     pub extra: toml::Table,
 }
@@ -192,15 +314,39 @@ impl CellManifest {
         let m: CellManifest = toml::from_str(text)
             .map_err(|e| Error::format(path, e.to_string().trim_end().to_string()))?;
         m.validate().map_err(|msg| Error::format(path, msg))?;
-        for r in &m.robots {
-            let unknown: Vec<&String> = r.extra.keys().collect();
-            if !unknown.is_empty() {
-                log::warn!(
-                    "{}: robot {:?}: keys not in {CELL_FORMAT} kept but ignored: {unknown:?}",
-                    path.display(),
-                    r.name
-                );
+        for (i, r) in m.robots.iter().enumerate() {
+            if let Some(k) = r.extra.keys().next() {
+                let hint = near_miss(k, ROBOT_KEYS)
+                    .map(|n| format!(" (did you mean `{n}`?)"))
+                    .unwrap_or_default();
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "robot[{i}] ({:?}): unknown key `{k}`{hint}; the keys of a [[robot]] table are {}",
+                        r.name,
+                        ROBOT_KEYS.join(", ")
+                    ),
+                ));
             }
+        }
+        for k in m.extra.keys() {
+            if MANIFEST_KEYS.contains(&k.as_str()) {
+                continue;
+            }
+            if let Some(n) = near_miss(k, MANIFEST_KEYS) {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "unknown table or key `{k}`: did you mean `{n}`? (known: {})",
+                        MANIFEST_KEYS.join(", ")
+                    ),
+                ));
+            }
+            log::warn!(
+                "{}: `{k}` is not part of {CELL_FORMAT} (known: {}); kept but ignored",
+                path.display(),
+                MANIFEST_KEYS.join(", ")
+            );
         }
         Ok(m)
     }
@@ -236,6 +382,21 @@ impl CellManifest {
                     "{at}: field `depth` = {:?} must contain {FRAME_PLACEHOLDER}",
                     r.depth
                 ));
+            }
+            for (key, v) in [
+                ("hand_eye_sigma_deg", r.hand_eye_sigma_deg),
+                ("hand_eye_sigma_mm", r.hand_eye_sigma_mm),
+                ("pose_repeatability_mm", r.pose_repeatability_mm),
+                ("pose_repeatability_deg", r.pose_repeatability_deg),
+                ("depth_scale_sigma", r.depth_scale_sigma),
+            ] {
+                if let Some(x) = v {
+                    if !(x >= 0.0 && x.is_finite()) {
+                        return Err(format!(
+                            "{at}: field `{key}` = {x} must be a finite 1-σ ≥ 0"
+                        ));
+                    }
+                }
             }
             if let Some(c) = &r.color {
                 if !c.contains(FRAME_PLACEHOLDER) {
@@ -358,6 +519,8 @@ pub struct CellRobot {
     pub poses_path: PathBuf,
     /// The frames, in pose-file order.
     pub frames: Vec<CellFrame>,
+    /// How uncertain the hand-eye, the poses and the depth are (stated or default).
+    pub uncertainty: RobotUncertainty,
 }
 
 impl CellRobot {
@@ -457,6 +620,7 @@ impl Cell {
             t_ee_cam,
             poses_path: poses_path.clone(),
             frames: Vec::with_capacity(records.len()),
+            uncertainty: RobotUncertainty::from_entry(e),
         };
         for PoseRecord { frame, pose, line } in records {
             let depth_path = frame_path(dir, &e.depth, &frame);

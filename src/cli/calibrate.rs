@@ -149,6 +149,8 @@ pub fn run(a: Args) -> Result<()> {
                         "sigma_rotation_deg": c.initial.sigma_rotation_deg, "sigma_translation_mm": c.initial.sigma_translation_m * 1e3,
                         "error_vs_truth": err(c.initial_error_vs_truth)},
             "error_vs_truth": err(c.error_vs_truth),
+            "normalised_error": c.normalised_error,
+            "inputs_covariance": matrix6_json(&c.inputs_covariance),
             "frames": {"reference": c.frames[0], "other": c.frames[1]},
             "fused_points": {"reference": c.fused_points[0], "other": c.fused_points[1]},
             "ros2": ros2,
@@ -236,6 +238,12 @@ pub fn run(a: Args) -> Result<()> {
             ti * 1e3
         ),
         _ => {}
+    }
+    if let Some(n) = &c.normalised_error {
+        println!(
+            "normalised error rotation {:.2}, translation {:.2}, pose {:.2} (error over the reported covariance; ~1 when honest)",
+            n.rotation, n.translation, n.pose
+        );
     }
     let times: Vec<String> = c
         .timings_ms
