@@ -38,6 +38,8 @@ struct Outcome {
     mahalanobis: Option<f64>,
     trusted: Option<bool>,
     degenerate: Option<bool>,
+    /// Axis of the rotation error `R_est · R_trueᵀ` in base1.
+    err_axis: Option<nalgebra::Vector3<f64>>,
     secs: f64,
 }
 
@@ -103,6 +105,7 @@ fn calibrate(cell: &ForeignCell, extra: &[&str]) -> Outcome {
         mahalanobis: None,
         trusted: None,
         degenerate: None,
+        err_axis: None,
         secs,
     };
     let Some(v) = json else {
@@ -123,6 +126,8 @@ fn calibrate(cell: &ForeignCell, extra: &[&str]) -> Outcome {
         .and_then(|x| x.as_f64());
     if let Some(est) = est {
         let d = left_increment(&est, &cell.truth);
+        let w = d.fixed_rows::<3>(0).into_owned();
+        o.err_axis = (w.norm() > 1e-12).then(|| w / w.norm());
         if o.rot_deg.is_none() {
             o.rot_deg = Some(d.fixed_rows::<3>(0).norm().to_degrees());
         }
@@ -153,7 +158,7 @@ fn f(x: Option<f64>, prec: usize) -> String {
 
 fn header() -> String {
     format!(
-        "{:>5} {:>6} {:>6} {:>9} {:>9} {:>9} {:>9} {:>7} {:>7} {:>7} {:>5} {:>7} {:>5} {:>6} {:>6}",
+        "{:>5} {:>6} {:>6} {:>9} {:>9} {:>9} {:>9} {:>7} {:>7} {:>7} {:>5} {:>7} {:>5} {:>6} {:>6} {:>17}",
         "seed",
         "scene",
         "share",
@@ -168,13 +173,14 @@ fn header() -> String {
         "trusted",
         "degen",
         "gen_s",
-        "cal_s"
+        "cal_s",
+        "err_axis"
     )
 }
 
 fn row(cell: &ForeignCell, o: &Outcome) -> String {
     format!(
-        "{:>5} {:>6} {:>6.2} {:>9} {:>9} {:>9} {:>9} {:>7} {:>7} {:>7} {:>5} {:>7} {:>5} {:>6.2} {:>6.2}",
+        "{:>5} {:>6} {:>6.2} {:>9} {:>9} {:>9} {:>9} {:>7} {:>7} {:>7} {:>5} {:>7} {:>5} {:>6.2} {:>6.2} {:>17}",
         cell.config.seed,
         cell.config.scene.name(),
         cell.shared_fraction[0].min(cell.shared_fraction[1]),
@@ -190,6 +196,8 @@ fn row(cell: &ForeignCell, o: &Outcome) -> String {
         o.degenerate.map_or("-".into(), |t| t.to_string()),
         cell.total_s,
         o.secs,
+        o.err_axis
+            .map_or("-".into(), |a| format!("({:.2},{:.2},{:.2})", a.x, a.y, a.z)),
     )
 }
 
@@ -506,4 +514,142 @@ fn preview() {
             cell.valid_fraction
         );
     }
+}
+
+fn read_xyz(path: &std::path::Path) -> Vec<nalgebra::Point3<f64>> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .filter_map(|l| {
+            let v: Vec<f64> = l
+                .split(|c: char| c.is_whitespace() || c == ',')
+                .filter(|s| !s.is_empty())
+                .take(3)
+                .map(|s| s.parse().ok())
+                .collect::<Option<Vec<f64>>>()?;
+            (v.len() == 3).then(|| nalgebra::Point3::new(v[0], v[1], v[2]))
+        })
+        .collect()
+}
+
+/// Median distance from each of `a`'s points (every `stride`-th) to the nearest of `b`'s (a hash grid of
+/// `cell` metres; farther than `cell` counts as `cell`).
+fn median_nearest(
+    a: &[nalgebra::Point3<f64>],
+    b: &[nalgebra::Point3<f64>],
+    cell: f64,
+    stride: usize,
+) -> f64 {
+    let key = |p: &nalgebra::Point3<f64>| {
+        (
+            (p.x / cell).floor() as i64,
+            (p.y / cell).floor() as i64,
+            (p.z / cell).floor() as i64,
+        )
+    };
+    let mut grid: std::collections::HashMap<(i64, i64, i64), Vec<usize>> = Default::default();
+    for (i, p) in b.iter().enumerate() {
+        grid.entry(key(p)).or_default().push(i);
+    }
+    let mut d: Vec<f64> = a
+        .iter()
+        .step_by(stride)
+        .map(|p| {
+            let (x, y, z) = key(p);
+            let mut best = cell;
+            for dx in -1..=1 {
+                for dy in -1..=1 {
+                    for dz in -1..=1 {
+                        for &i in grid.get(&(x + dx, y + dy, z + dz)).into_iter().flatten() {
+                            best = best.min((b[i] - p).norm());
+                        }
+                    }
+                }
+            }
+            best
+        })
+        .collect();
+    d.sort_by(|x, y| x.partial_cmp(y).unwrap());
+    d[d.len() / 2]
+}
+
+/// depthcal reads a foreign cell as the generator means it: each robot's frames fused by `depthcal fuse` in
+/// its own base, the other robot's cloud moved by the generator's `T_base1_base2`, land on each other.
+#[test]
+fn depthcal_fuse_of_both_robots_agrees_with_the_truth() {
+    let cfg = ForeignConfig {
+        views: 4,
+        width: 424,
+        height: 320,
+        ..ForeignConfig::default()
+    };
+    let cell = scratch_cell("fuse", &cfg);
+    let mut clouds = Vec::new();
+    for name in &cfg.names {
+        let out = cell.dir.join(format!("{name}.xyz"));
+        let (code, _, err) = depthcal(&[
+            "fuse",
+            cell.dir.to_str().unwrap(),
+            "--robot",
+            name,
+            "--output",
+            out.to_str().unwrap(),
+            "--threads",
+            "2",
+            "--no-normals",
+            "--voxel",
+            "0.002",
+            "--no-outlier-removal",
+        ]);
+        assert_eq!(code, 0, "{err}");
+        clouds.push(read_xyz(&out));
+    }
+    // The shared part: on or above the table, near its centre (the floor around is seen by one robot each).
+    let near = |p: &nalgebra::Point3<f64>| {
+        p.z > cell.table_top - 0.01 && (p.coords - cell.table_centre).xy().norm() < 0.4
+    };
+    clouds[0].retain(near);
+    let moved: Vec<_> = clouds[1]
+        .iter()
+        .map(|p| cell.truth * p)
+        .filter(near)
+        .collect();
+    // Distances of the objects' points only (the table plane would hide a slide along it).
+    let moved: Vec<_> = moved
+        .into_iter()
+        .filter(|p| p.z > cell.table_top + 0.015)
+        .collect();
+    let d = median_nearest(&moved, &clouds[0], 0.01, 3);
+    // The truth fits better than the truth moved by 3 mm along any axis or turned 0.3° about any axis.
+    let mut worse = Vec::new();
+    for k in 0..6 {
+        let mut xi = nalgebra::Vector3::zeros();
+        xi[k % 3] = 1.0;
+        let off = if k < 3 {
+            nalgebra::Isometry3::from_parts(
+                nalgebra::Translation3::from(xi * 0.003),
+                UnitQuaternion::identity(),
+            )
+        } else {
+            // Turned about the table centre so the turn does not also move it.
+            let c = nalgebra::Translation3::from(cell.table_centre);
+            c * nalgebra::Isometry3::from_parts(
+                nalgebra::Translation3::identity(),
+                UnitQuaternion::from_scaled_axis(xi * 0.3f64.to_radians()),
+            ) * c.inverse()
+        };
+        let moved_off: Vec<_> = moved.iter().map(|p| off * p).collect();
+        worse.push(median_nearest(&moved_off, &clouds[0], 0.01, 3));
+    }
+    println!(
+        "fused {} / {} points; median nearest distance of the objects' points under the truth {:.3} mm; \
+         3 mm off along x, y, z / 0.3 deg about x, y, z: {:.3?} mm",
+        clouds[0].len(),
+        moved.len(),
+        d * 1e3,
+        worse.iter().map(|w| w * 1e3).collect::<Vec<_>>()
+    );
+    assert!(d < 0.002, "median {d} m");
+    assert!(worse.iter().all(|&w| w > d), "{d} vs {worse:?}");
+    let _ = std::fs::remove_dir_all(&cell.dir);
 }

@@ -920,6 +920,9 @@ pub struct ForeignCell {
     pub shared_fraction: [f64; 2],
     /// Per robot: the fraction of pixels with data.
     pub valid_fraction: [f64; 2],
+    /// Table top height and table centre in base1 (metres).
+    pub table_top: f64,
+    pub table_centre: Vector3<f64>,
     /// Seconds spent ray casting all views.
     pub render_s: f64,
     /// Seconds for the whole generation (incl. PNG writing and the shared-fraction measurement).
@@ -1266,6 +1269,8 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
         t_base_ee: t_base_ee_all,
         shared_fraction,
         valid_fraction,
+        table_top: scene.table_top,
+        table_centre: scene.table_centre,
         render_s,
         total_s: start.elapsed().as_secs_f64(),
         config: cfg.clone(),
