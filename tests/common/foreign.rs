@@ -443,24 +443,28 @@ impl Placer {
     }
 }
 
-/// Builds the scene of `kind` for a table centred at `centre` (xy, world) with its top at `top`, `length`
-/// along the line between the bases (world x) and `width` across.
+/// Builds the scene of `kind` for a table whose top's centre is `centre` (world), `length` along the line
+/// between the bases (world x) and `width` across.
 fn build_scene(
     kind: SceneKind,
     rng: &mut Rand,
     centre: Vector3<f64>,
-    top: f64,
     length: f64,
     width: f64,
     back_wall: bool,
+    with_floor: bool,
 ) -> Scene {
+    let top = centre.z;
     let thickness = 0.04;
     let floor = top - rng.range(0.70, 0.80);
     let (cx, cy) = (centre.x, centre.y);
-    let mut big = vec![Prim::Plane {
-        n: Vector3::z(),
-        k: floor,
-    }];
+    let mut big = Vec::new();
+    if with_floor {
+        big.push(Prim::Plane {
+            n: Vector3::z(),
+            k: floor,
+        });
+    }
     let mut objects = Vec::new();
     let table = |l: f64, w: f64| Prim::Cuboid {
         c: Vector3::new(cx, cy, top - thickness / 2.0),
@@ -870,6 +874,9 @@ pub struct ForeignConfig {
     pub yaw_jitter_deg: f64,
     /// Put a back wall behind the table (always there in the shelf scene).
     pub back_wall: bool,
+    /// A floor 0.7-0.8 m below the table top (default true; without it the views see nothing beyond the
+    /// table's edges).
+    pub floor: bool,
     /// Metres per depth unit written in the intrinsics (0.001 or 0.0001).
     pub depth_scale: f64,
     /// Depth noise.
@@ -896,6 +903,7 @@ impl Default for ForeignConfig {
             tilt_deg: 0.0,
             yaw_jitter_deg: 10.0,
             back_wall: false,
+            floor: true,
             depth_scale: 0.001,
             noise: Noise::default(),
             names: ["arm_a".into(), "arm_b".into()],
@@ -1030,10 +1038,10 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
         cfg.scene,
         &mut rng,
         centre,
-        top,
         length,
         width,
         cfg.back_wall,
+        cfg.floor,
     );
     // Cameras and hand-eyes.
     let bases = [Vector3::zeros(), base2];
@@ -1041,7 +1049,7 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
     let mut intr = Vec::new();
     let mut hand_eye = Vec::new();
     let mut cams = Vec::new();
-    for k in 0..2 {
+    for base in bases {
         let w = cfg.width as f64;
         let fx = w * 0.6 * (1.0 + rng.range(-0.01, 0.01));
         intr.push(Pinhole {
@@ -1065,7 +1073,7 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
             ),
             q,
         ));
-        cams.push(camera_arc(&mut rng, cfg.views, &scene, bases[k]));
+        cams.push(camera_arc(&mut rng, cfg.views, &scene, base));
     }
     // Render.
     let t_render = std::time::Instant::now();
