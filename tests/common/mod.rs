@@ -139,3 +139,4 @@ pub fn write_kuka_pose_file(
     }
     std::fs::write(path, s).unwrap();
 }
+pub mod foreign;
