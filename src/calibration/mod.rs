@@ -4,6 +4,7 @@
 //! Frames follow the crate convention: `T_a_b` maps coordinates in frame b to frame a.
 
 pub mod average;
+pub mod consistency;
 pub mod board_init;
 pub mod feature_init;
 pub mod handeye;
