@@ -23,7 +23,7 @@ use crate::camera::{DepthView, Intrinsics};
 use crate::cell::CellRobot;
 use crate::error::{Error, Result};
 use crate::fusion::FusedCloud;
-use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -60,8 +60,8 @@ pub struct ConsistencyConfig {
     pub frame_floor_m: f64,
     /// See `frame_floor_m` (default 2.0).
     pub frame_noise_sigmas: f64,
-    /// A frame is also inconsistent when its free-space fraction exceeds this (default 0.25) and
-    /// `frame_ratio` × the robot's median free-space fraction.
+    /// A frame is also inconsistent when its free-space fraction exceeds this (default 0.02) and
+    /// `frame_free_space_ratio` × the robot's median free-space fraction.
     pub frame_max_free_space: f64,
     /// The whole robot is inconsistent when its median frame residual exceeds this (metres, default 0.02)
     /// plus `frame_noise_sigmas · σ(z)` ...
@@ -70,6 +70,18 @@ pub struct ConsistencyConfig {
     pub robot_max_free_space: f64,
     /// ... or more than this fraction of its judged frames is inconsistent (default 0.4).
     pub whole_robot_fraction: f64,
+    /// A frame is also inconsistent when the 90th percentile of its residuals exceeds this multiple of the
+    /// robot's median one (default 4.0) and twice the noise floor of `frame_floor_m`.
+    pub frame_p90_ratio: f64,
+    /// See `frame_max_free_space` (default 5.0).
+    pub frame_free_space_ratio: f64,
+    /// The causes are searched when the robot's median residual exceeds this multiple of its frames' own
+    /// roughness (block-scale depth noise) (default 1.5), or when the robot is grossly inconsistent.
+    pub systematic_ratio: f64,
+    /// A correction must also lower the cost by at least this much, metres (default 0.0002).
+    pub min_explained_m: f64,
+    /// The cause search uses every `search_stride`-th sample (default 3).
+    pub search_stride: usize,
     /// Search the causes (depth scale, focal length, hand-eye) when the whole robot is inconsistent
     /// (default true; costs ~0.1-0.5 s then).
     pub diagnose: bool,
@@ -93,10 +105,15 @@ impl Default for ConsistencyConfig {
             frame_ratio: 3.0,
             frame_floor_m: 0.004,
             frame_noise_sigmas: 2.0,
-            frame_max_free_space: 0.25,
+            frame_max_free_space: 0.02,
             robot_max_residual_m: 0.02,
             robot_max_free_space: 0.15,
             whole_robot_fraction: 0.4,
+            frame_p90_ratio: 4.0,
+            frame_free_space_ratio: 5.0,
+            systematic_ratio: 1.5,
+            min_explained_m: 0.0002,
+            search_stride: 3,
             diagnose: true,
             explain_ratio: 0.5,
         }
@@ -126,6 +143,7 @@ impl ConsistencyConfig {
             ("free_space_margin_m", self.free_space_margin_m),
             ("frame_floor_m", self.frame_floor_m),
             ("frame_noise_sigmas", self.frame_noise_sigmas),
+            ("min_explained_m", self.min_explained_m),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return bad(name, format!("must be a finite number ≥ 0, found {v}"));
@@ -134,6 +152,9 @@ impl ConsistencyConfig {
         for (name, v) in [
             ("gate_m", self.gate_m),
             ("frame_ratio", self.frame_ratio),
+            ("frame_p90_ratio", self.frame_p90_ratio),
+            ("frame_free_space_ratio", self.frame_free_space_ratio),
+            ("systematic_ratio", self.systematic_ratio),
             ("robot_max_residual_m", self.robot_max_residual_m),
         ] {
             if !(v.is_finite() && v > 0.0) {
@@ -235,8 +256,6 @@ struct FrameRaw {
     occluded: usize,
     /// Median camera depth of the frame's samples, metres.
     z_med: f64,
-    /// Signed residuals with the sample's depth and normalised image radius (for the evidence summary).
-    signed: Vec<[f32; 3]>,
 }
 
 impl FrameRaw {
@@ -278,6 +297,24 @@ fn block_smooth(view: &DepthView, k: usize, cfg: &ConsistencyConfig) -> bool {
     let (n, f) = (view.near[k] as f64, view.far[k] as f64);
     let z = 0.5 * (n + f);
     n > 0.0 && f - n <= cfg.smooth_relative * z + 6.0 * cfg.sigma(z)
+}
+
+/// The median over smooth blocks of `|mid_k − (mid_left + mid_right) / 2|` (metres): the depth noise
+/// (and curvature) at the block scale that a frame shows on its own, the yardstick the residuals between
+/// frames are compared with before the causes are searched.
+fn roughness(view: &DepthView, cfg: &ConsistencyConfig) -> f64 {
+    let w = view.size[0] as usize;
+    if view.near.len() != w * view.size[1] as usize || w < 3 {
+        return 0.0;
+    }
+    let mid = |k: usize| 0.5 * (view.near[k] + view.far[k]);
+    let mut d: Vec<f32> = (0..view.near.len())
+        .step_by(7)
+        .filter(|&k| k % w != 0 && k % w != w - 1)
+        .filter(|&k| (k - 1..=k + 1).all(|kk| block_smooth(view, kk, cfg)))
+        .map(|k| (mid(k) - 0.5 * (mid(k - 1) + mid(k + 1))).abs())
+        .collect();
+    median_f32(&mut d)
 }
 
 /// A deterministic pseudo-random sample of a view's smooth blocks.
@@ -363,11 +400,13 @@ struct Setup<'a> {
     robot: &'a CellRobot,
     views: &'a [DepthView],
     samples: Vec<Vec<Sample>>,
+    /// Only every `stride`-th sample is used (1 for the statistics, more for the cause search).
+    stride: usize,
 }
 
 impl Setup<'_> {
     /// Residual statistics of every frame under `model` (frame order; deterministic).
-    fn evaluate(&self, model: &Model, cfg: &ConsistencyConfig, keep_signed: bool) -> Vec<FrameRaw> {
+    fn evaluate(&self, model: &Model, cfg: &ConsistencyConfig) -> Vec<FrameRaw> {
         let base = &self.robot.intrinsics;
         let intr = Intrinsics {
             fx: base.fx * model.fx,
@@ -379,7 +418,6 @@ impl Setup<'_> {
             .collect();
         let inv: Vec<Isometry3<f64>> = poses.iter().map(|p| p.inverse()).collect();
         let (w, h) = (intr.width as f64, intr.height as f64);
-        let half_diag = 0.5 * (w * w + h * h).sqrt();
         let s = model.scale;
         (0..self.views.len())
             .into_par_iter()
@@ -403,14 +441,11 @@ impl Setup<'_> {
                         )
                     })
                     .collect();
-                for p in samples {
+                for p in samples.iter().step_by(self.stride.max(1)) {
                     let z = p.z as f64 * s;
                     let pc = intr.deproject([p.u as f64, p.v as f64], z);
                     let pc = Vector3::new(pc[0], pc[1], pc[2]);
                     let gate = cfg.gate(z);
-                    let radius = ((p.u as f64 - intr.ppx).powi(2) + (p.v as f64 - intr.ppy).powi(2))
-                        .sqrt()
-                        / half_diag;
                     for (j, r, t) in &pairs {
                         let q = r * pc + t;
                         if q.z <= 1e-3 {
@@ -439,9 +474,6 @@ impl Setup<'_> {
                             raw.free += 1;
                         }
                         raw.abs.push(res.abs().min(gate) as f32);
-                        if keep_signed {
-                            raw.signed.push([res as f32, z as f32, radius as f32]);
-                        }
                     }
                 }
                 raw
@@ -452,7 +484,7 @@ impl Setup<'_> {
     /// The robot's residual cost under a model: the median over all tests of the capped absolute residual,
     /// occluded tests counted at the gate (so a model cannot win by pushing points out of sight).
     fn cost(&self, model: &Model, cfg: &ConsistencyConfig) -> f64 {
-        let raws = self.evaluate(model, cfg, false);
+        let raws = self.evaluate(model, cfg);
         let mut all: Vec<f32> = Vec::new();
         for r in &raws {
             all.extend_from_slice(&r.abs);
@@ -518,9 +550,11 @@ pub fn robot_consistency(
             .par_iter()
             .map(|v| sample_view(v, &robot.intrinsics, cfg))
             .collect(),
+        stride: 1,
     };
-    let raws = setup.evaluate(&Model::nominal(), cfg, true);
-    judge(robot, &setup, raws, cfg, &mut out);
+    let rough: Vec<f64> = views.par_iter().map(|v| roughness(v, cfg)).collect();
+    let raws = setup.evaluate(&Model::nominal(), cfg);
+    judge(robot, &setup, raws, median_f64(&rough), cfg, &mut out);
     out
 }
 
@@ -538,6 +572,7 @@ fn judge(
     robot: &CellRobot,
     setup: &Setup<'_>,
     mut raws: Vec<FrameRaw>,
+    rough: f64,
     cfg: &ConsistencyConfig,
     out: &mut RobotConsistency,
 ) {
@@ -561,14 +596,19 @@ fn judge(
     let pick = |v: &[f64]| -> Vec<f64> { (0..n).filter(|&i| judged[i]).map(|i| v[i]).collect() };
     let robot_med = median_f64(&pick(&medians));
     let robot_free = median_f64(&pick(&free));
+    let robot_p90 = median_f64(&pick(&p90s));
     let z_robot = median_f64(&pick(&raws.iter().map(|r| r.z_med).collect::<Vec<_>>()));
     out.median_residual_m = robot_med;
     let mut bad = Vec::new();
     for i in 0..n {
-        let thr = (cfg.frame_ratio * robot_med)
-            .max(cfg.frame_floor_m + cfg.frame_noise_sigmas * cfg.sigma(raws[i].z_med));
-        let fs_thr = cfg.frame_max_free_space.max(cfg.frame_ratio * robot_free);
-        let ok = !judged[i] || (medians[i] <= thr && free[i] <= fs_thr);
+        let floor = cfg.frame_floor_m + cfg.frame_noise_sigmas * cfg.sigma(raws[i].z_med);
+        let thr = (cfg.frame_ratio * robot_med).max(floor);
+        let p90_thr = (cfg.frame_p90_ratio * robot_p90).max(2.0 * floor);
+        let fs_thr = cfg
+            .frame_max_free_space
+            .max(cfg.frame_free_space_ratio * robot_free);
+        let ok =
+            !judged[i] || (medians[i] <= thr && p90s[i] <= p90_thr && free[i] <= fs_thr);
         if !ok {
             bad.push(i);
         }
@@ -593,9 +633,26 @@ fn judge(
         return;
     }
     let robot_thr = cfg.robot_max_residual_m + cfg.frame_noise_sigmas * cfg.sigma(z_robot);
-    let whole = robot_med > robot_thr
+    let gross = robot_med > robot_thr
         || robot_free > cfg.robot_max_free_space
         || bad.len() as f64 > cfg.whole_robot_fraction * n_judged as f64;
+    // Residuals well above the frames' own roughness: search a global correction that explains them.
+    let suspicious = robot_med > cfg.systematic_ratio * rough;
+    let explained = if cfg.diagnose && (gross || suspicious) {
+        explain(robot, setup, cfg, gross)
+    } else {
+        None
+    };
+    let systematic = explained
+        .as_ref()
+        .is_some_and(|(c0, best)| best[0].0 <= cfg.explain_ratio * c0 && c0 - best[0].0 > cfg.min_explained_m);
+    log::debug!(
+        "robot {}: roughness {:.2} mm, cost and best corrections {:?}",
+        robot.name,
+        rough * 1e3,
+        explained
+    );
+    let whole = gross || systematic;
     log::debug!(
         "consistency of robot {}: median residual {:.2} mm (limit {:.2} mm), free space {:.1}%, {} of {} frames off",
         robot.name,
@@ -621,8 +678,7 @@ fn judge(
             n_judged
         );
         out.findings.push(what);
-        out.findings
-            .push(diagnose(robot, setup, &raws, cfg));
+        out.findings.push(cause(robot, explained.as_ref(), cfg));
     } else if !bad.is_empty() {
         out.consistent = false;
         for &i in &bad {
@@ -641,64 +697,76 @@ fn judge(
 
 /// Names the likely cause of a whole robot's inconsistency by re-evaluating the residuals under corrected
 /// models; lists the candidates when none explains it.
-fn diagnose(robot: &CellRobot, setup: &Setup<'_>, raws: &[FrameRaw], cfg: &ConsistencyConfig) -> String {
-    let candidates = format!(
-        "likely cause: the intrinsics (focal length / principal point), the depth scale or the hand-eye of robot {}",
-        robot.name
-    );
-    let _ = raws;
-    if !cfg.diagnose {
-        return candidates;
-    }
+/// Returns the uncorrected cost and the corrections (cost, words), best first; `None` when nothing can
+/// be evaluated. `wide` searches focal-length factors up to 10x (for gross faults).
+#[allow(clippy::type_complexity)]
+fn explain(
+    robot: &CellRobot,
+    full: &Setup<'_>,
+    cfg: &ConsistencyConfig,
+    wide: bool,
+) -> Option<(f64, Vec<(f64, String)>)> {
+    let setup = Setup {
+        robot: full.robot,
+        views: full.views,
+        samples: full.samples.clone(),
+        stride: cfg.search_stride.max(1),
+    };
+    let setup = &setup;
     let c0 = setup.cost(&Model::nominal(), cfg);
     if !c0.is_finite() || c0 <= 0.0 {
-        return candidates;
+        return None;
     }
-    // One-parameter searches in log space, coarse then fine.
-    let search = |set: &dyn Fn(f64) -> Model, span: f64, step: f64| -> (f64, f64) {
-        let mut best = (0.0, c0);
-        let mut k = -span;
-        while k <= span + 1e-9 {
-            let c = setup.cost(&set(k), cfg);
-            if c < best.1 {
-                best = (k, c);
+    // One-parameter pattern searches in log space: steps halve until `fine`.
+    let search = |set: &dyn Fn(f64) -> Model, start_step: f64| -> (f64, f64) {
+        let (mut x, mut best, mut step) = (0.0, c0, start_step);
+        if wide {
+            // Gross faults (a focal length 10x off): a coarse grid first.
+            let mut k = -2.4;
+            while k <= 2.4 + 1e-9 {
+                let c = setup.cost(&set(k), cfg);
+                if c < best {
+                    (x, best) = (k, c);
+                }
+                k += 0.2;
             }
-            k += step;
+            step = 0.1;
         }
-        let centre = best.0;
-        let mut k = centre - step;
-        while k <= centre + step + 1e-9 {
-            let c = setup.cost(&set(k), cfg);
-            if c < best.1 {
-                best = (k, c);
+        while step >= 0.004 {
+            let mut moved = false;
+            for d in [-step, step] {
+                let c = setup.cost(&set(x + d), cfg);
+                if c < best {
+                    (x, best, moved) = (x + d, c, true);
+                    break;
+                }
             }
-            k += step / 8.0;
+            if !moved {
+                step *= 0.5;
+            }
         }
-        (best.0.exp(), best.1)
+        (x.exp(), best)
     };
     let scale = search(
         &|k| Model {
             scale: k.exp(),
             ..Model::nominal()
         },
-        0.4,
-        0.05,
+        0.064,
     );
     let fx = search(
         &|k| Model {
             fx: k.exp(),
             ..Model::nominal()
         },
-        2.4,
-        0.1,
+        0.064,
     );
     let fy = search(
         &|k| Model {
             fy: k.exp(),
             ..Model::nominal()
         },
-        2.4,
-        0.1,
+        0.064,
     );
     let f = search(
         &|k| Model {
@@ -706,8 +774,7 @@ fn diagnose(robot: &CellRobot, setup: &Setup<'_>, raws: &[FrameRaw], cfg: &Consi
             fy: k.exp(),
             ..Model::nominal()
         },
-        2.4,
-        0.1,
+        0.064,
     );
     let he = hand_eye_search(setup, cfg, c0);
     log::debug!(
@@ -762,11 +829,26 @@ fn diagnose(robot: &CellRobot, setup: &Setup<'_>, raws: &[FrameRaw], cfg: &Consi
         ),
     ];
     options.sort_by(|a, b| a.0.total_cmp(&b.0));
+    Some((c0, options))
+}
+
+/// The finding that names the cause of a whole robot's inconsistency.
+fn cause(
+    robot: &CellRobot,
+    explained: Option<&(f64, Vec<(f64, String)>)>,
+    cfg: &ConsistencyConfig,
+) -> String {
+    let candidates = format!(
+        "likely cause: the intrinsics (focal length / principal point), the depth scale or the hand-eye of robot {}",
+        robot.name
+    );
+    let Some((c0, options)) = explained else {
+        return candidates;
+    };
     let explained: Vec<&(f64, String)> = options
         .iter()
         .filter(|o| o.0 <= cfg.explain_ratio * c0)
-        .collect();
-    match explained.as_slice() {
+        .collect();    match explained.as_slice() {
         [] => candidates,
         [one] => format!("likely cause: {}", one.1),
         [first, second, ..] if first.0 <= 0.6 * second.0 => {
@@ -795,7 +877,7 @@ fn hand_eye_search(setup: &Setup<'_>, cfg: &ConsistencyConfig, c0: f64) -> (Stri
         ..Model::nominal()
     };
     let mut best = c0;
-    for (rot, trans) in [(0.04, 0.02), (0.015, 0.008), (0.005, 0.003), (0.002, 0.001)] {
+    for (rot, trans) in [(0.03, 0.012), (0.01, 0.004), (0.003, 0.0015)] {
         for _ in 0..2 {
             let mut improved = false;
             for d in 0..6 {
@@ -818,7 +900,6 @@ fn hand_eye_search(setup: &Setup<'_>, cfg: &ConsistencyConfig, c0: f64) -> (Stri
     }
     let angle = Vector3::new(x[0], x[1], x[2]).norm().to_degrees();
     let shift = Vector3::new(x[3], x[4], x[5]).norm() * 1e3;
-    let _ = Point3::<f64>::origin();
     (format!("{angle:.1}° and {shift:.0} mm"), best)
 }
 
@@ -1005,10 +1086,7 @@ mod tests {
     fn probe() {
         let dirs = std::env::var("CONSISTENCY_CELLS")
             .unwrap_or_else(|_| demo_dir().display().to_string());
-        let cfg = ConsistencyConfig {
-            diagnose: std::env::var("CONSISTENCY_DIAGNOSE").is_ok(),
-            ..Default::default()
-        };
+        let cfg = ConsistencyConfig::default();
         for dir in dirs.split(':') {
             let cell = Cell::open(dir).unwrap();
             for robot in &cell.robots {
