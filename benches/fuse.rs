@@ -151,6 +151,14 @@ fn cell(c: &mut Criterion) {
             ))
         })
     });
+    use depthcal::calibration::consistency::{robot_consistency, ConsistencyConfig};
+    let ccfg = ConsistencyConfig::default();
+    g.bench_function("robot_consistency_both", |b| {
+        b.iter(|| {
+            black_box(robot_consistency(&cell.robots[0], &a, &ccfg).consistent)
+                & black_box(robot_consistency(&cell.robots[1], &o, &ccfg).consistent)
+        })
+    });
     g.finish();
 }
 

@@ -319,7 +319,8 @@ fn roughness(view: &DepthView, cfg: &ConsistencyConfig) -> f64 {
 
 /// A deterministic pseudo-random sample of a view's smooth blocks.
 fn sample_view(view: &DepthView, intr: &Intrinsics, cfg: &ConsistencyConfig) -> Vec<Sample> {
-    if view.near.len() != (view.size[0] * view.size[1]) as usize || view.far.len() != view.near.len()
+    if view.near.len() != (view.size[0] * view.size[1]) as usize
+        || view.far.len() != view.near.len()
     {
         return Vec::new();
     }
@@ -516,8 +517,10 @@ pub fn robot_consistency(
         findings: Vec::new(),
     };
     if let Err(e) = cfg.validate() {
-        out.findings
-            .push(format!("robot {}: consistency not checked: {e}", robot.name));
+        out.findings.push(format!(
+            "robot {}: consistency not checked: {e}",
+            robot.name
+        ));
         return out;
     }
     let built: Vec<DepthView>;
@@ -607,8 +610,7 @@ fn judge(
         let fs_thr = cfg
             .frame_max_free_space
             .max(cfg.frame_free_space_ratio * robot_free);
-        let ok =
-            !judged[i] || (medians[i] <= thr && p90s[i] <= p90_thr && free[i] <= fs_thr);
+        let ok = !judged[i] || (medians[i] <= thr && p90s[i] <= p90_thr && free[i] <= fs_thr);
         if !ok {
             bad.push(i);
         }
@@ -643,9 +645,9 @@ fn judge(
     } else {
         None
     };
-    let systematic = explained
-        .as_ref()
-        .is_some_and(|(c0, best)| best[0].0 <= cfg.explain_ratio * c0 && c0 - best[0].0 > cfg.min_explained_m);
+    let systematic = explained.as_ref().is_some_and(|(c0, best)| {
+        best[0].0 <= cfg.explain_ratio * c0 && c0 - best[0].0 > cfg.min_explained_m
+    });
     log::debug!(
         "robot {}: roughness {:.2} mm, cost and best corrections {:?}",
         robot.name,
@@ -848,7 +850,8 @@ fn cause(
     let explained: Vec<&(f64, String)> = options
         .iter()
         .filter(|o| o.0 <= cfg.explain_ratio * c0)
-        .collect();    match explained.as_slice() {
+        .collect();
+    match explained.as_slice() {
         [] => candidates,
         [one] => format!("likely cause: {}", one.1),
         [first, second, ..] if first.0 <= 0.6 * second.0 => {
@@ -921,7 +924,9 @@ mod tests {
     }
 
     /// The faults measured in the module documentation, applied to a robot in memory.
-    pub(super) fn faults() -> Vec<(&'static str, Box<dyn Fn(&mut CellRobot)>)> {
+    type Fault = Box<dyn Fn(&mut CellRobot)>;
+
+    pub(super) fn faults() -> Vec<(&'static str, Fault)> {
         let he = |t: Isometry3<f64>| -> Box<dyn Fn(&mut CellRobot)> {
             Box::new(move |r: &mut CellRobot| r.t_ee_cam *= t)
         };
@@ -939,10 +944,22 @@ mod tests {
         };
         vec![
             ("none", Box::new(|_: &mut CellRobot| {})),
-            ("fy x10", Box::new(|r: &mut CellRobot| r.intrinsics.fy *= 10.0)),
-            ("fy x1.05", Box::new(|r: &mut CellRobot| r.intrinsics.fy *= 1.05)),
-            ("fx x1.05", Box::new(|r: &mut CellRobot| r.intrinsics.fx *= 1.05)),
-            ("ppx +10px", Box::new(|r: &mut CellRobot| r.intrinsics.ppx += 10.0)),
+            (
+                "fy x10",
+                Box::new(|r: &mut CellRobot| r.intrinsics.fy *= 10.0),
+            ),
+            (
+                "fy x1.05",
+                Box::new(|r: &mut CellRobot| r.intrinsics.fy *= 1.05),
+            ),
+            (
+                "fx x1.05",
+                Box::new(|r: &mut CellRobot| r.intrinsics.fx *= 1.05),
+            ),
+            (
+                "ppx +10px",
+                Box::new(|r: &mut CellRobot| r.intrinsics.ppx += 10.0),
+            ),
             (
                 "depth_scale x1.1",
                 Box::new(|r: &mut CellRobot| r.intrinsics.depth_scale *= 1.1),
@@ -951,22 +968,49 @@ mod tests {
                 "depth_scale x1.03",
                 Box::new(|r: &mut CellRobot| r.intrinsics.depth_scale *= 1.03),
             ),
-            ("hand-eye 1 cm x", he(Isometry3::translation(0.01, 0.0, 0.0))),
-            ("hand-eye 1 cm z", he(Isometry3::translation(0.0, 0.0, 0.01))),
+            (
+                "hand-eye 1 cm x",
+                he(Isometry3::translation(0.01, 0.0, 0.0)),
+            ),
+            (
+                "hand-eye 1 cm z",
+                he(Isometry3::translation(0.0, 0.0, 0.01)),
+            ),
             (
                 "hand-eye 2 deg x",
-                he(Isometry3::rotation(Vector3::new(2f64.to_radians(), 0.0, 0.0))),
+                he(Isometry3::rotation(Vector3::new(
+                    2f64.to_radians(),
+                    0.0,
+                    0.0,
+                ))),
             ),
             (
                 "hand-eye 2 deg z",
-                he(Isometry3::rotation(Vector3::new(0.0, 0.0, 2f64.to_radians()))),
+                he(Isometry3::rotation(Vector3::new(
+                    0.0,
+                    0.0,
+                    2f64.to_radians(),
+                ))),
             ),
-            ("pose row x+3 cm (frame 5)", row(Isometry3::translation(0.03, 0.0, 0.0))),
-            ("pose row y+3 cm (frame 5)", row(Isometry3::translation(0.0, 0.03, 0.0))),
-            ("pose row z+3 cm (frame 5)", row(Isometry3::translation(0.0, 0.0, 0.03))),
+            (
+                "pose row x+3 cm (frame 5)",
+                row(Isometry3::translation(0.03, 0.0, 0.0)),
+            ),
+            (
+                "pose row y+3 cm (frame 5)",
+                row(Isometry3::translation(0.0, 0.03, 0.0)),
+            ),
+            (
+                "pose row z+3 cm (frame 5)",
+                row(Isometry3::translation(0.0, 0.0, 0.03)),
+            ),
             (
                 "pose row a+2 deg (frame 5)",
-                row(Isometry3::rotation(Vector3::new(0.0, 0.0, 2f64.to_radians()))),
+                row(Isometry3::rotation(Vector3::new(
+                    0.0,
+                    0.0,
+                    2f64.to_radians(),
+                ))),
             ),
         ]
     }
@@ -994,6 +1038,170 @@ mod tests {
             off,
             judged.first().map(|f| f.points).unwrap_or(0)
         )
+    }
+
+    /// A copy of the demo cell in a fresh temporary directory.
+    fn demo_copy(name: &str) -> PathBuf {
+        let dst = std::env::temp_dir().join(format!(
+            "depthcal-consistency-{}-{name}",
+            std::process::id()
+        ));
+        let _ = std::fs::remove_dir_all(&dst);
+        fn copy(src: &Path, dst: &Path) {
+            std::fs::create_dir_all(dst).unwrap();
+            for e in std::fs::read_dir(src).unwrap() {
+                let e = e.unwrap();
+                let to = dst.join(e.file_name());
+                if e.file_type().unwrap().is_dir() {
+                    copy(&e.path(), &to);
+                } else {
+                    std::fs::copy(e.path(), to).unwrap();
+                }
+            }
+        }
+        copy(&demo_dir(), &dst);
+        dst
+    }
+
+    #[test]
+    fn demo_cell_is_consistent() {
+        let cell = Cell::open(demo_dir()).unwrap();
+        for robot in &cell.robots {
+            let c = check(robot, &ConsistencyConfig::default());
+            assert!(c.consistent, "{:?}", c.findings);
+            assert!(c.findings.is_empty());
+            assert_eq!(c.frames.len(), 20);
+            assert!(
+                c.median_residual_m > 0.0 && c.median_residual_m < 0.001,
+                "{}",
+                c.median_residual_m
+            );
+            assert!(c.frames.iter().all(|f| f.consistent && f.points > 1000));
+        }
+    }
+
+    #[test]
+    fn a_wrong_pose_row_is_named() {
+        let dir = demo_copy("pose-row");
+        let poses = dir.join("right/poses.csv");
+        let text = std::fs::read_to_string(&poses).unwrap();
+        // Line 7 is frame 005: raise z_mm by 30.
+        let lines: Vec<String> = text
+            .lines()
+            .enumerate()
+            .map(|(k, l)| {
+                if k == 6 {
+                    let mut f: Vec<String> = l.split(',').map(str::to_string).collect();
+                    f[3] = format!("{}", f[3].parse::<f64>().unwrap() + 30.0);
+                    f.join(",")
+                } else {
+                    l.to_string()
+                }
+            })
+            .collect();
+        std::fs::write(&poses, lines.join("\n") + "\n").unwrap();
+        let cell = Cell::open(&dir).unwrap();
+        let c = check(cell.robot("right").unwrap(), &ConsistencyConfig::default());
+        let _ = std::fs::remove_dir_all(&dir);
+        assert!(!c.consistent);
+        let off: Vec<&FrameConsistency> = c.frames.iter().filter(|f| !f.consistent).collect();
+        assert_eq!(off.len(), 1, "{:?}", c.findings);
+        assert_eq!((off[0].id.as_str(), off[0].pose_line), ("005", 7));
+        assert!(off[0].median_residual_m > 0.02 && off[0].free_space_fraction > 0.5);
+        assert_eq!(c.findings.len(), 1);
+        assert!(
+            c.findings[0].contains("wrong pose row (frame 005, line 7 of"),
+            "{}",
+            c.findings[0]
+        );
+    }
+
+    #[test]
+    fn a_wrong_focal_length_in_the_intrinsics_file_is_named() {
+        let dir = demo_copy("fy");
+        let path = dir.join("left/intrinsics.json");
+        let mut j: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        j["fy"] = serde_json::json!(j["fy"].as_f64().unwrap() * 1.05);
+        std::fs::write(&path, j.to_string()).unwrap();
+        let cell = Cell::open(&dir).unwrap();
+        let c = check(cell.robot("left").unwrap(), &ConsistencyConfig::default());
+        let _ = std::fs::remove_dir_all(&dir);
+        assert!(!c.consistent);
+        assert!(c.median_residual_m > 0.0008, "{}", c.median_residual_m);
+        assert!(c.frames.iter().all(|f| !f.consistent));
+        assert_eq!(c.findings.len(), 2, "{:?}", c.findings);
+        assert!(c.findings[0].contains("robot left's frames disagree"));
+        assert!(
+            c.findings[1].contains("focal length fy of robot left"),
+            "{}",
+            c.findings[1]
+        );
+    }
+
+    #[test]
+    fn a_wrong_depth_scale_and_a_wrong_hand_eye_are_told_apart() {
+        let cell = Cell::open(demo_dir()).unwrap();
+        let mut r = cell.robots[1].clone();
+        r.intrinsics.depth_scale *= 1.1;
+        let c = check(&r, &ConsistencyConfig::default());
+        assert!(!c.consistent);
+        assert!(
+            c.findings[1].contains("depth scale of robot right"),
+            "{:?}",
+            c.findings
+        );
+        let mut r = cell.robots[1].clone();
+        r.t_ee_cam *= Isometry3::rotation(Vector3::new(2f64.to_radians(), 0.0, 0.0));
+        let c = check(&r, &ConsistencyConfig::default());
+        assert!(!c.consistent);
+        assert!(
+            c.findings[1].contains("hand-eye of robot right"),
+            "{:?}",
+            c.findings
+        );
+    }
+
+    #[test]
+    fn few_or_empty_frames_do_not_panic() {
+        let cell = Cell::open(demo_dir()).unwrap();
+        let robot = &cell.robots[0];
+        let fused = fuse_robot(robot, &CalibrateConfig::default().fuse, &|_| {}).unwrap();
+        let cfg = ConsistencyConfig::default();
+        // No frames at all.
+        let mut r0 = robot.clone();
+        r0.frames.clear();
+        let c = robot_consistency(&r0, &FusedCloud::default(), &cfg);
+        assert!(c.consistent && c.frames.is_empty());
+        // One frame: nothing to compare with.
+        let mut r1 = robot.clone();
+        r1.frames.truncate(1);
+        let mut f1 = fused.clone();
+        f1.views.truncate(1);
+        let c = robot_consistency(&r1, &f1, &cfg);
+        assert!(c.consistent && c.frames.len() == 1 && c.frames[0].points == 0);
+        // Views that saw nothing, and no views at all (read again from the depth images).
+        let mut blind = fused.clone();
+        for v in &mut blind.views {
+            v.near.iter_mut().for_each(|z| *z = 0.0);
+            v.far.iter_mut().for_each(|z| *z = 0.0);
+        }
+        let c = robot_consistency(robot, &blind, &cfg);
+        assert!(c.consistent && c.frames.iter().all(|f| f.points == 0));
+        let mut r3 = robot.clone();
+        r3.frames.truncate(3);
+        let c = robot_consistency(&r3, &FusedCloud::default(), &cfg);
+        assert!(
+            c.consistent && c.frames.iter().all(|f| f.points > 100),
+            "{c:?}"
+        );
+        // A bad configuration is reported, not a panic.
+        let bad = ConsistencyConfig {
+            gate_m: f64::NAN,
+            ..cfg
+        };
+        assert!(bad.validate().is_err());
+        assert!(!robot_consistency(robot, &fused, &bad).findings.is_empty());
     }
 
     /// Builds the 7-Scenes real-depth cell of `tests/calibrate_real.rs` (interleaved frames) in `dir`.
@@ -1074,7 +1282,8 @@ mod tests {
     #[test]
     #[ignore]
     fn write_seven_scenes() {
-        let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/7scenes-rgbd-tsdf-fusion");
+        let data =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/7scenes-rgbd-tsdf-fusion");
         let out = std::env::var("CONSISTENCY_7SCENES").unwrap();
         build_seven_scenes(&data, Path::new(&out));
     }
@@ -1084,8 +1293,8 @@ mod tests {
     #[test]
     #[ignore]
     fn probe() {
-        let dirs = std::env::var("CONSISTENCY_CELLS")
-            .unwrap_or_else(|_| demo_dir().display().to_string());
+        let dirs =
+            std::env::var("CONSISTENCY_CELLS").unwrap_or_else(|_| demo_dir().display().to_string());
         let cfg = ConsistencyConfig::default();
         for dir in dirs.split(':') {
             let cell = Cell::open(dir).unwrap();

@@ -4,8 +4,8 @@
 //! Frames follow the crate convention: `T_a_b` maps coordinates in frame b to frame a.
 
 pub mod average;
-pub mod consistency;
 pub mod board_init;
+pub mod consistency;
 pub mod feature_init;
 pub mod handeye;
 pub mod initializer;
