@@ -144,6 +144,14 @@ fn cell(c: &mut Criterion) {
     g.bench_function("free_space_violation", |b| {
         b.iter(|| black_box(free_space_violation(&ra, &ro, &truth, &vcfg)))
     });
+    use depthcal::calibration::consistency::{robot_consistency, ConsistencyConfig};
+    let ccfg = ConsistencyConfig::default();
+    g.bench_function("robot_consistency_both", |b| {
+        b.iter(|| {
+            black_box(robot_consistency(&cell.robots[0], &a, &ccfg).consistent)
+                & black_box(robot_consistency(&cell.robots[1], &o, &ccfg).consistent)
+        })
+    });
     g.finish();
 }
 

@@ -5,6 +5,7 @@
 
 pub mod average;
 pub mod board_init;
+pub mod consistency;
 pub mod feature_init;
 pub mod handeye;
 pub mod initializer;
