@@ -1,6 +1,7 @@
 //! Robot-to-robot calibration of a cell: fuse each robot's frames in its base frame, get an initial
 //! `T_base1_base2` from an [`Initializer`], refine it with trimmed robust ICP, and report its quality.
 
+use crate::calibration::consistency::{robot_consistency, ConsistencyConfig, RobotConsistency};
 use crate::calibration::initializer::{sight, InitialGuess, Initializer, InitializerInput};
 use crate::calibration::priors::CellPriors;
 use crate::calibration::uncertainty::{
@@ -42,6 +43,8 @@ pub struct CalibrateConfig {
     pub marker: crate::calibration::marker_init::MarkerMethodConfig,
     /// The 2D-feature method's settings (`--method features`).
     pub features: crate::calibration::feature_init::FeatureMethodConfig,
+    /// The check of each robot's own frames against each other ([`crate::calibration::consistency`]).
+    pub consistency: ConsistencyConfig,
 }
 
 impl Default for CalibrateConfig {
@@ -91,6 +94,7 @@ impl Default for CalibrateConfig {
             seed: 0,
             marker: Default::default(),
             features: Default::default(),
+            consistency: ConsistencyConfig::default(),
         }
     }
 }
@@ -151,6 +155,8 @@ pub struct Calibration {
     pub inputs_covariance: Matrix6<f64>,
     /// The error against the ground truth normalised by `covariance`, when the cell has a truth.
     pub normalised_error: Option<NormalisedError>,
+    /// Each robot's own frames against each other (reference, other), when the clouds were fused.
+    pub consistency: Vec<RobotConsistency>,
 }
 
 /// The free-space test of the final transform.
@@ -345,7 +351,16 @@ pub fn refine_cell(
         trust: Trust::new(),
         inputs_covariance: Matrix6::zeros(),
         normalised_error: None,
+        consistency: Vec::new(),
     };
+    if !ref_cloud.views.is_empty() && !other_cloud.views.is_empty() {
+        let (a, b) = rayon::join(
+            || robot_consistency(reference, ref_cloud, &cfg.consistency),
+            || robot_consistency(other, other_cloud, &cfg.consistency),
+        );
+        out.consistency = vec![a, b];
+        lap("consistency", &mut out.timings_ms);
+    }
     let inputs = |t: &nalgebra::Isometry3<f64>| {
         inputs_covariance(
             t,
@@ -432,6 +447,19 @@ fn calibration_trust(
                 c.transform.translation.vector.norm()
             ),
             "check [priors] in cell.toml; if a base really is tilted, state bases_level = false (or use --no-priors)",
+        );
+    }
+    for r in c.consistency.iter().filter(|r| !r.consistent) {
+        t.fail(
+            format!(
+                "robot {:?}'s own frames disagree with each other: {}",
+                r.robot,
+                r.findings.join("; ")
+            ),
+            format!(
+                "check robot {:?}'s intrinsics (focal length, principal point, depth scale), hand-eye and pose file",
+                r.robot
+            ),
         );
     }
     if let Some(a) = &c.ambiguity {

@@ -150,6 +150,7 @@ pub fn run(a: Args) -> Result<()> {
                         "error_vs_truth": err(c.initial_error_vs_truth)},
             "error_vs_truth": err(c.error_vs_truth),
             "normalised_error": c.normalised_error,
+            "consistency": c.consistency,
             "inputs_covariance": matrix6_json(&c.inputs_covariance),
             "frames": {"reference": c.frames[0], "other": c.frames[1]},
             "fused_points": {"reference": c.fused_points[0], "other": c.fused_points[1]},
