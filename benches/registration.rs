@@ -130,6 +130,7 @@ fn stages(c: &mut Criterion) {
                     v,
                     &PoseConstraint::default(),
                     None,
+                    false,
                     &vcfg,
                 ))
             })

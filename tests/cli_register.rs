@@ -228,16 +228,22 @@ fn planar_cloud_is_reported_degenerate() {
     let (code, stdout, stderr) =
         depthcal(&["register", s(&ap), s(&bp), "--json", "--init", s(&init)]);
     assert!(!stderr.contains("panicked"), "{stderr}");
-    assert_eq!(code, 0, "{stderr}");
+    // A degenerate result is printed in full but not trusted: exit status 3.
+    assert_eq!(code, 3, "{stderr}");
     let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert_eq!(v["degenerate"], serde_json::json!(true), "{stdout}");
+    assert_eq!(v["trusted"], serde_json::json!(false), "{stdout}");
     assert!(stderr.contains("unconstrained"), "{stderr}");
     // Without a guess, the global stage either fails with a message or returns a degenerate result.
     let (code, stdout, stderr) = depthcal(&["register", s(&ap), s(&bp), "--json"]);
     assert!(!stderr.contains("panicked"), "{stderr}");
-    if code == 0 {
+    assert_ne!(
+        code, 0,
+        "a bare plane is never a trusted registration: {stdout}"
+    );
+    if code == 3 {
         let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
-        assert_eq!(v["degenerate"], serde_json::json!(true));
+        assert_eq!(v["trusted"], serde_json::json!(false));
     } else {
         assert!(stderr.contains("error"), "{stderr}");
     }

@@ -196,6 +196,13 @@ pub struct RobotUncertainty {
     pub stated: Vec<String>,
 }
 
+impl Default for RobotUncertainty {
+    /// The defaults of a robot entry that states none.
+    fn default() -> Self {
+        RobotUncertainty::from_entry(&RobotEntry::standard("", Isometry3::identity()))
+    }
+}
+
 impl RobotUncertainty {
     /// The robot entry's values, with the defaults where it says nothing.
     pub fn from_entry(e: &RobotEntry) -> Self {

@@ -140,6 +140,8 @@ pub fn run(a: Args) -> Result<()> {
                                 "sigma_translation_mm": c.initial.sigma_translation_m * 1e3,
                                 "detail": c.initial.detail},
                     "disagreement": err(disagreement(r.method, &c.transform)),
+                    "trusted": c.trust.trusted,
+                    "reasons": c.trust.reasons,
                     "time_ms": ms,
                 }),
                 Err(e) => serde_json::json!({
@@ -157,7 +159,7 @@ pub fn run(a: Args) -> Result<()> {
             "total_ms": total_ms,
         });
         println!("{}", serde_json::to_string_pretty(&v)?);
-        return Ok(());
+        return verdict(&rows);
     }
     let truth = cell.ground_truth()?.and_then(|g| g.t_base1_base2).is_some();
     let fmt = |e: Option<(f64, f64)>| {
@@ -211,5 +213,33 @@ pub fn run(a: Args) -> Result<()> {
             " (no ground_truth.json: no errors)"
         }
     );
-    Ok(())
+    for r in &rows {
+        if let Ok((c, _)) = &r.outcome {
+            if !c.trust.trusted {
+                println!(
+                    "{} not trusted: {}",
+                    r.method.name(),
+                    c.trust.reasons.join("; ")
+                );
+            }
+        }
+    }
+    verdict(&rows)
+}
+
+/// Exit status of the comparison: an error when every requested method failed, untrusted when none gave a
+/// trusted result.
+fn verdict(rows: &[Row]) -> Result<()> {
+    let ran: Vec<&Calibration> = rows
+        .iter()
+        .filter_map(|r| r.outcome.as_ref().ok().map(|(c, _)| c))
+        .collect();
+    if ran.is_empty() {
+        anyhow::bail!("every method failed or was skipped");
+    }
+    if ran.iter().any(|c| c.trust.trusted) {
+        Ok(())
+    } else {
+        Err(super::Untrusted(vec!["no method gave a trusted result".into()]).into())
+    }
 }

@@ -314,7 +314,8 @@ pub fn ransac_sided(
         dp.min(dq) >= sim * dp.max(dq)
     };
 
-    let side_pairs: Option<(Vec<[f32; 3]>, Vec<[f32; 3]>, f32)> = sides.map(|sd| {
+    type SidePairs = (Vec<[f32; 3]>, Vec<[f32; 3]>, f32);
+    let side_pairs: Option<SidePairs> = sides.map(|sd| {
         (
             corr.iter().map(|c| sd.source[c.source as usize]).collect(),
             corr.iter().map(|c| sd.target[c.target as usize]).collect(),

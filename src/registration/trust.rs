@@ -138,7 +138,9 @@ pub fn assess_registration(r: &Registration, cfg: &TrustConfig, unit: &str) -> T
             "give an initial guess (--init), a crop box around the shared part, or more distinctive shared geometry",
         );
     }
-    if !(r.fitness >= cfg.min_fitness) || !(r.overlap >= cfg.min_overlap) {
+    // NaN (nothing measured) fails too.
+    let below = |v: f64, min: f64| v.is_nan() || v < min;
+    if below(r.fitness, cfg.min_fitness) || below(r.overlap, cfg.min_overlap) {
         t.fail(
             format!(
                 "the clouds share too little: fitness {:.3} (at least {}), overlap {:.3} (at least {})",
@@ -160,7 +162,7 @@ pub fn assess_registration(r: &Registration, cfg: &TrustConfig, unit: &str) -> T
             "check that both clouds show the same scene in the same unit, or give an initial guess (--init)",
         );
     }
-    if !(r.surface_agreement >= cfg.min_surface_agreement) {
+    if below(r.surface_agreement, cfg.min_surface_agreement) {
         t.fail(
             format!(
                 "the aligned surfaces do not coincide: {:.1}% of the source lies on a target surface (at least {:.0}%)",
