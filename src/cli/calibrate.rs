@@ -1,7 +1,9 @@
 //! `depthcal calibrate CELL_DIR`: robot-to-robot calibration of a cell dataset.
 
 use super::methods::{build, CalibrateSettings, Method, MethodInputs};
-use super::output::{matrix4_json, matrix4_text, matrix6_json, spinner, timings_json};
+use super::output::{
+    ambiguity_json, matrix4_json, matrix4_text, matrix6_json, spinner, timings_json,
+};
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
 use depthcal::calibration::robot_to_robot::{calibrate, initialize_only};
@@ -142,9 +144,7 @@ pub fn run(a: Args) -> Result<()> {
             "reasons": c.trust.reasons,
             "suggestions": c.trust.suggestions,
             "free_space": c.free_space,
-            "ambiguity": c.ambiguity.as_ref().map(|x| serde_json::json!({
-                "runner_up": matrix4_json(&x.runner_up), "score_ratio": x.score_ratio,
-                "rotation_deg": x.rotation_deg, "translation_mm": x.translation * 1e3})),
+            "ambiguity": c.ambiguity.as_ref().map(|x| ambiguity_json(x, "translation_mm", 1e3)),
             "initial": {"transform": matrix4_json(&c.initial.transform), "detail": c.initial.detail,
                         "sigma_rotation_deg": c.initial.sigma_rotation_deg, "sigma_translation_mm": c.initial.sigma_translation_m * 1e3,
                         "error_vs_truth": err(c.initial_error_vs_truth)},

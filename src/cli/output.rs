@@ -18,6 +18,22 @@ pub fn read_config<T: serde::de::DeserializeOwned + Default>(
     serde_json::from_str(&text).with_context(|| format!("{}: not a valid {what}", p.display()))
 }
 
+/// An ambiguity (runner-up transform, score ratio, distance) as JSON; the translation under `key`, scaled by
+/// `scale` (e.g. `translation_mm`, 1e3 for a cell in metres).
+pub fn ambiguity_json(
+    a: &depthcal::registration::pipeline::Ambiguity,
+    key: &str,
+    scale: f64,
+) -> serde_json::Value {
+    let mut v = serde_json::json!({
+        "runner_up": matrix4_json(&a.runner_up),
+        "score_ratio": a.score_ratio,
+        "rotation_deg": a.rotation_deg,
+    });
+    v[key] = (a.translation * scale).into();
+    v
+}
+
 /// A 4x4 row-major nested array.
 pub fn matrix4_json(t: &Isometry3<f64>) -> serde_json::Value {
     serde_json::json!(depthcal::geometry::transform::isometry_to_nested(t))

@@ -1,6 +1,8 @@
 //! `depthcal register SOURCE TARGET`.
 
-use super::output::{matrix4_json, matrix4_text, matrix6_json, spinner, timings_json};
+use super::output::{
+    ambiguity_json, matrix4_json, matrix4_text, matrix6_json, spinner, timings_json,
+};
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
 use depthcal::io::{read_cloud, read_matrix_file, write_cloud};
@@ -120,9 +122,7 @@ pub fn run(a: Args) -> Result<()> {
             "reasons": reg.trust.reasons,
             "suggestions": reg.trust.suggestions,
             "surface_agreement": reg.surface_agreement,
-            "ambiguity": reg.ambiguity.as_ref().map(|x| serde_json::json!({
-                "runner_up": matrix4_json(&x.runner_up), "score_ratio": x.score_ratio,
-                "rotation_deg": x.rotation_deg, "translation": x.translation})),
+            "ambiguity": reg.ambiguity.as_ref().map(|x| ambiguity_json(x, "translation", 1.0)),
             "error_vs_truth": error.map(|(r, t)| serde_json::json!({"rotation_deg": r, "translation": t})),
             "timings_ms": timings_json(&reg.timings_ms),
             "total_ms": total_ms,
