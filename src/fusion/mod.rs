@@ -221,6 +221,49 @@ impl FusedCloud {
         }
         self.cloud.normals.is_some()
     }
+
+    /// Distance from each point to its mean camera centre ([`FusedCloud::viewpoints`]), metres. Empty
+    /// when the cloud has no viewpoints.
+    pub fn ranges(&self) -> Vec<f32> {
+        if self.viewpoints.len() != self.cloud.points.len() {
+            return Vec::new();
+        }
+        self.cloud
+            .points
+            .iter()
+            .zip(&self.viewpoints)
+            .map(|(p, v)| {
+                let d = [v[0] - p[0], v[1] - p[1], v[2] - p[2]];
+                (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+            })
+            .collect()
+    }
+
+    /// Keeps the points for which `keep(index)` holds (with their normals, colours, counts and
+    /// viewpoints); the views and the statistics are left as they are. Returns the number dropped.
+    pub fn retain_points(&mut self, keep: impl Fn(usize) -> bool) -> usize {
+        let mask: Vec<bool> = (0..self.cloud.points.len()).map(keep).collect();
+        let before = self.cloud.points.len();
+        fn filter<T: Copy>(v: &mut Vec<T>, mask: &[bool]) {
+            if v.len() == mask.len() {
+                let mut i = 0;
+                v.retain(|_| {
+                    i += 1;
+                    mask[i - 1]
+                });
+            }
+        }
+        filter(&mut self.cloud.points, &mask);
+        if let Some(n) = self.cloud.normals.as_mut() {
+            filter(n, &mask);
+        }
+        if let Some(c) = self.cloud.colors.as_mut() {
+            filter(c, &mask);
+        }
+        filter(&mut self.counts, &mask);
+        filter(&mut self.viewpoints, &mask);
+        before - self.cloud.points.len()
+    }
 }
 
 /// One frame to fuse: its depth image and `T_base_cam`.
