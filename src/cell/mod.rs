@@ -663,6 +663,14 @@ pub fn resolve_cell_path(
     Ok(joined)
 }
 
+/// Whether `path` (existing) lies inside `dir` after canonicalisation.
+fn is_inside(dir: &Path, path: &Path) -> bool {
+    match (dir.canonicalize(), path.canonicalize()) {
+        (Ok(d), Ok(p)) => p.starts_with(d),
+        _ => false,
+    }
+}
+
 /// Substitutes the frame id into a path pattern.
 pub fn frame_path(dir: &Path, pattern: &str, frame: &str) -> PathBuf {
     dir.join(pattern.replace(FRAME_PLACEHOLDER, frame))
@@ -722,11 +730,35 @@ impl Cell {
             HandEyeSpec::Inline(_) => None,
             HandEyeSpec::File(p) => Some(resolve("hand_eye", p)?),
         };
-        let (_, records) = read_poses(&poses_path, Some(e.pose_format))?;
-        let intrinsics = Intrinsics::from_json_file(&intr_path)?;
+        // A file outside the cell (allowed by the opt-in) is read, but its errors do not quote it.
+        let quiet = |path: &Path, what: &str| {
+            let outside = !is_inside(dir, path);
+            let (path, what) = (path.to_path_buf(), what.to_string());
+            move |err: Error| {
+                if outside {
+                    Error::format(
+                        &path,
+                        format!(
+                            "not a valid {what} (the file is outside the cell directory: its content is \
+                             not shown)"
+                        ),
+                    )
+                } else {
+                    err
+                }
+            }
+        };
+        let (_, records) = read_poses(&poses_path, Some(e.pose_format)).map_err(quiet(
+            &poses_path,
+            &format!("pose file of format {}", e.pose_format),
+        ))?;
+        let intrinsics =
+            Intrinsics::from_json_file(&intr_path).map_err(quiet(&intr_path, "intrinsics file"))?;
         let t_ee_cam = match (&e.hand_eye, &hand_eye_path) {
             (HandEyeSpec::Inline(t), _) => *t,
-            (HandEyeSpec::File(_), Some(p)) => read_hand_eye_file(p)?,
+            (HandEyeSpec::File(_), Some(p)) => {
+                read_hand_eye_file(p).map_err(quiet(p, "hand-eye file"))?
+            }
             (HandEyeSpec::File(p), None) => read_hand_eye_file(&dir.join(p))?,
         };
         let mut robot = CellRobot {
