@@ -277,11 +277,11 @@ fn cell_paths_stay_in_the_cell() {
     assert_eq!(
         listing(&d)
             .into_iter()
-            .filter(|(p, _)| p.starts_with(&d.join("cell/right")))
+            .filter(|(p, _)| p.starts_with(d.join("cell/right")))
             .collect::<Vec<_>>(),
         before
             .into_iter()
-            .filter(|(p, _)| p.starts_with(&d.join("cell/right")))
+            .filter(|(p, _)| p.starts_with(d.join("cell/right")))
             .collect::<Vec<_>>()
     );
 }

@@ -253,7 +253,7 @@ pub fn scale_mismatch(source_extent: f64, target_extent: f64) -> Option<String> 
     } else {
         (target_extent, source_extent)
     };
-    if !(lo > 0.0) || hi / lo <= 20.0 {
+    if lo.is_nan() || lo <= 0.0 || hi / lo <= 20.0 {
         return None;
     }
     Some(format!(
