@@ -23,6 +23,7 @@ pub mod io;
 pub mod preprocess;
 pub mod registration;
 pub mod sim;
+pub mod tempfiles;
 #[cfg(feature = "vision")]
 pub mod vision;
 

@@ -543,6 +543,8 @@ mod tests {
             intrinsics: Intrinsics::pinhole(640, 480, 600.0, 600.0, 320.0, 240.0),
             t_ee_cam: Isometry3::translation(0.0, 0.0, 0.05),
             poses_path: PathBuf::from("poses.csv"),
+            intrinsics_path: PathBuf::from("intrinsics.json"),
+            hand_eye_path: None,
             uncertainty: Default::default(),
             frames: poses
                 .iter()

@@ -15,8 +15,11 @@
 //! color = "left/color/{frame}.png"   # optional
 //! ```
 //!
-//! Every path is relative to the cell directory (absolute paths are accepted too). Tables and keys this
-//! version does not know (e.g. `[priors]`) are kept and written back unchanged. See `docs/cell-format.md`.
+//! Every path is relative to the cell directory and must stay inside it: an absolute path, or one that
+//! leaves the directory (`..`, a symlink) after canonicalisation, is an error naming the key, unless the
+//! manifest opts in with `allow_outside_paths = true` at its top. A path whose file name is a temporary
+//! file of an atomic write (`.NAME.tmp-PID`) is never read. Tables and keys this version does not know
+//! (e.g. `[priors]`) are kept and written back unchanged. See `docs/cell-format.md`.
 
 pub mod board;
 pub mod fiducial;
@@ -176,7 +179,19 @@ pub const ROBOT_KEYS: &[&str] = &[
 ];
 
 /// The top-level keys and tables of `cell.toml`.
-pub const MANIFEST_KEYS: &[&str] = &["format", "reference", "robot", "priors", "board", "markers"];
+pub const MANIFEST_KEYS: &[&str] = &[
+    "format",
+    "reference",
+    "robot",
+    "priors",
+    "board",
+    "markers",
+    ALLOW_OUTSIDE_PATHS,
+];
+
+/// The top-level manifest key (`allow_outside_paths = true`) that lets the cell's paths point outside the
+/// cell directory (absolute paths, `..`, symlinks leaving it).
+pub const ALLOW_OUTSIDE_PATHS: &str = "allow_outside_paths";
 
 /// What the cell says, or depthcal assumes, about how uncertain each robot's inputs are; it enters the
 /// covariance of `T_base1_base2`.
@@ -413,6 +428,13 @@ impl CellManifest {
                 }
             }
         }
+        if let Some(v) = self.extra.get(ALLOW_OUTSIDE_PATHS) {
+            if !v.is_bool() {
+                return Err(format!(
+                    "field `{ALLOW_OUTSIDE_PATHS}` must be true or false, not {v}"
+                ));
+            }
+        }
         if !self.robots.iter().any(|r| r.name == self.reference) {
             let names: Vec<&str> = self.robots.iter().map(|r| r.name.as_str()).collect();
             return Err(format!(
@@ -421,6 +443,14 @@ impl CellManifest {
             ));
         }
         Ok(())
+    }
+
+    /// Whether the manifest allows paths outside the cell directory (`allow_outside_paths = true`).
+    pub fn allows_outside_paths(&self) -> bool {
+        self.extra
+            .get(ALLOW_OUTSIDE_PATHS)
+            .and_then(|v| v.as_bool())
+            .unwrap_or(false)
     }
 
     /// The manifest as TOML text.
@@ -524,6 +554,10 @@ pub struct CellRobot {
     pub t_ee_cam: Isometry3<f64>,
     /// The pose file (resolved path).
     pub poses_path: PathBuf,
+    /// The intrinsics file (resolved path).
+    pub intrinsics_path: PathBuf,
+    /// The hand-eye file (resolved path), when `hand_eye` names one.
+    pub hand_eye_path: Option<PathBuf>,
     /// The frames, in pose-file order.
     pub frames: Vec<CellFrame>,
     /// How uncertain the hand-eye, the poses and the depth are (stated or default).
@@ -569,6 +603,74 @@ pub struct Cell {
     pub robots: Vec<CellRobot>,
 }
 
+/// Resolves a manifest path against the cell directory and keeps it there: `key` names the field in errors
+/// (e.g. `robot[0] ("left"): field `poses``). Unless `allow_outside`, an absolute path, or one that leaves
+/// `dir` after canonicalisation (`..`, a symlink), is an error; a temporary file of an atomic write always is.
+/// The returned path is `dir` joined with `rel` (as the user spelled it). Errors never show file contents.
+pub fn resolve_cell_path(
+    dir: &Path,
+    manifest: &Path,
+    key: &str,
+    rel: &str,
+    allow_outside: bool,
+) -> Result<PathBuf> {
+    let joined = dir.join(rel);
+    if crate::tempfiles::is_temp_path(&joined) {
+        return Err(Error::format(
+            manifest,
+            format!(
+                "{key} = {rel:?} names a temporary file of an interrupted write (.NAME.tmp-PID), not data"
+            ),
+        ));
+    }
+    if allow_outside {
+        return Ok(joined);
+    }
+    let hint = format!(
+        "paths in a cell must stay inside the cell directory {} (set `{ALLOW_OUTSIDE_PATHS} = true` at the \
+         top of cell.toml to allow other paths)",
+        dir.display()
+    );
+    if Path::new(rel).is_absolute() || rel.starts_with('~') {
+        return Err(Error::format(
+            manifest,
+            format!("{key} = {rel:?} is an absolute path; {hint}"),
+        ));
+    }
+    let root = dir.canonicalize().map_err(|e| Error::io(dir, e))?;
+    // The deepest existing ancestor, canonicalised; the rest must not climb out with `..`.
+    let mut existing = joined.as_path();
+    let mut rest: Vec<&std::ffi::OsStr> = Vec::new();
+    let resolved = loop {
+        match existing.canonicalize() {
+            Ok(c) => break Some(c),
+            Err(_) => match (existing.parent(), existing.file_name()) {
+                (Some(p), Some(n)) => {
+                    rest.push(n);
+                    existing = p;
+                }
+                _ => break None,
+            },
+        }
+    };
+    let inside = resolved.is_some_and(|c| c.starts_with(&root)) && !rest.iter().any(|n| *n == "..");
+    if !inside {
+        return Err(Error::format(
+            manifest,
+            format!("{key} = {rel:?} leads outside the cell directory; {hint}"),
+        ));
+    }
+    Ok(joined)
+}
+
+/// Whether `path` (existing) lies inside `dir` after canonicalisation.
+fn is_inside(dir: &Path, path: &Path) -> bool {
+    match (dir.canonicalize(), path.canonicalize()) {
+        (Ok(d), Ok(p)) => p.starts_with(d),
+        _ => false,
+    }
+}
+
 /// Substitutes the frame id into a path pattern.
 pub fn frame_path(dir: &Path, pattern: &str, frame: &str) -> PathBuf {
     dir.join(pattern.replace(FRAME_PLACEHOLDER, frame))
@@ -603,7 +705,11 @@ impl Cell {
         let manifest = CellManifest::read(&dir)?;
         let mut robots = Vec::with_capacity(manifest.robots.len());
         for entry in &manifest.robots {
-            robots.push(Self::open_robot(&dir, entry)?);
+            robots.push(Self::open_robot(
+                &dir,
+                entry,
+                manifest.allows_outside_paths(),
+            )?);
         }
         Ok(Cell {
             dir,
@@ -612,25 +718,71 @@ impl Cell {
         })
     }
 
-    fn open_robot(dir: &Path, e: &RobotEntry) -> Result<CellRobot> {
-        let poses_path = dir.join(&e.poses);
-        let intr_path = dir.join(&e.intrinsics);
-        let (_, records) = read_poses(&poses_path, Some(e.pose_format))?;
-        let intrinsics = Intrinsics::from_json_file(&intr_path)?;
-        let t_ee_cam = match &e.hand_eye {
-            HandEyeSpec::Inline(t) => *t,
-            HandEyeSpec::File(p) => read_hand_eye_file(&dir.join(p))?,
+    fn open_robot(dir: &Path, e: &RobotEntry, allow_outside: bool) -> Result<CellRobot> {
+        let manifest = dir.join(MANIFEST_FILE);
+        let at = |field: &str| format!("robot {:?}: field `{field}`", e.name);
+        let resolve = |field: &str, rel: &str| {
+            resolve_cell_path(dir, &manifest, &at(field), rel, allow_outside)
+        };
+        let poses_path = resolve("poses", &e.poses)?;
+        let intr_path = resolve("intrinsics", &e.intrinsics)?;
+        let hand_eye_path = match &e.hand_eye {
+            HandEyeSpec::Inline(_) => None,
+            HandEyeSpec::File(p) => Some(resolve("hand_eye", p)?),
+        };
+        // A file outside the cell (allowed by the opt-in) is read, but its errors do not quote it.
+        let quiet = |path: &Path, what: &str| {
+            let outside = !is_inside(dir, path);
+            let (path, what) = (path.to_path_buf(), what.to_string());
+            move |err: Error| {
+                if outside {
+                    Error::format(
+                        &path,
+                        format!(
+                            "not a valid {what} (the file is outside the cell directory: its content is \
+                             not shown)"
+                        ),
+                    )
+                } else {
+                    err
+                }
+            }
+        };
+        let (_, records) = read_poses(&poses_path, Some(e.pose_format)).map_err(quiet(
+            &poses_path,
+            &format!("pose file of format {}", e.pose_format),
+        ))?;
+        let intrinsics =
+            Intrinsics::from_json_file(&intr_path).map_err(quiet(&intr_path, "intrinsics file"))?;
+        let t_ee_cam = match (&e.hand_eye, &hand_eye_path) {
+            (HandEyeSpec::Inline(t), _) => *t,
+            (HandEyeSpec::File(_), Some(p)) => {
+                read_hand_eye_file(p).map_err(quiet(p, "hand-eye file"))?
+            }
+            (HandEyeSpec::File(p), None) => read_hand_eye_file(&dir.join(p))?,
         };
         let mut robot = CellRobot {
             name: e.name.clone(),
             intrinsics,
             t_ee_cam,
             poses_path: poses_path.clone(),
+            intrinsics_path: intr_path,
+            hand_eye_path,
             frames: Vec::with_capacity(records.len()),
             uncertainty: RobotUncertainty::from_entry(e),
         };
         for PoseRecord { frame, pose, line } in records {
-            let depth_path = frame_path(dir, &e.depth, &frame);
+            let depth_rel = e.depth.replace(FRAME_PLACEHOLDER, &frame);
+            let depth_path = resolve_cell_path(
+                dir,
+                &manifest,
+                &format!(
+                    "{} (frame {frame:?} of line {line} of the poses)",
+                    at("depth")
+                ),
+                &depth_rel,
+                allow_outside,
+            )?;
             if !depth_path.is_file() {
                 return Err(Error::format(
                     &poses_path,
@@ -644,7 +796,19 @@ impl Cell {
             }
             let (w, h) = read_depth_png_header(&depth_path)?;
             robot.check_size(&depth_path, w, h)?;
-            let color_path = e.color.as_ref().map(|c| frame_path(dir, c, &frame));
+            let color_path = match &e.color {
+                Some(c) => Some(resolve_cell_path(
+                    dir,
+                    &manifest,
+                    &format!(
+                        "{} (frame {frame:?} of line {line} of the poses)",
+                        at("color")
+                    ),
+                    &c.replace(FRAME_PLACEHOLDER, &frame),
+                    allow_outside,
+                )?),
+                None => None,
+            };
             if let Some(c) = &color_path {
                 if !c.is_file() {
                     return Err(Error::format(

@@ -63,6 +63,8 @@ pub fn run(a: Args) -> Result<()> {
         cfg.features.detector = d.clone();
     }
     let cell = Cell::open(&a.cell)?;
+    // A malformed optional ground_truth.json is reported before any work.
+    cell.ground_truth()?;
     if !a.board_pose.is_empty() && a.method != Method::Checkerboard {
         anyhow::bail!("--board-pose is for --method checkerboard");
     }

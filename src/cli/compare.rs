@@ -43,6 +43,8 @@ pub fn run(a: Args) -> Result<()> {
     let start = Instant::now();
     let cfg = a.settings.config()?;
     let cell = Cell::open(&a.cell)?;
+    // A malformed optional ground_truth.json is reported before any work.
+    cell.ground_truth()?;
     let mut plan = available(&cell);
     if !a.methods.is_empty() {
         if let Some(m) = a.methods.iter().find(|m| **m == Method::Guess) {

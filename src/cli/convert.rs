@@ -22,6 +22,12 @@ pub struct Args {
 
 /// Runs `depthcal convert`.
 pub fn run(a: Args) -> anyhow::Result<()> {
+    if let Some(out) = &a.output {
+        super::guard::check_output_file("--output", out, &[])?;
+        let mut inputs = super::guard::Inputs::default();
+        inputs.add("the input pose file", &a.poses);
+        inputs.check_output("--output", out)?;
+    }
     let (from, records) = read_poses(&a.poses, a.from)?;
     match &a.output {
         Some(out) => {

@@ -1,5 +1,6 @@
 //! `depthcal fuse`: fuse one robot's depth frames of a cell dataset into a base-frame cloud.
 
+use super::guard::{check_output_file, Inputs};
 use anyhow::Context;
 use clap::Args as ClapArgs;
 use depthcal::cell::Cell;
@@ -28,14 +29,15 @@ pub struct Args {
     /// Farthest depth kept, metres.
     #[arg(long, default_value_t = 10.0)]
     pub max_depth: f64,
-    /// Workspace crop box in the base frame, metres: xmin,ymin,zmin,xmax,ymax,zmax.
+    /// Workspace crop box in the base frame, metres: x0,y0,z0,x1,y1,z1 (one argument, comma separated;
+    /// the corners in any order).
     #[arg(
         long,
-        value_delimiter = ',',
-        num_args = 6,
-        allow_negative_numbers = true
+        value_name = "x0,y0,z0,x1,y1,z1",
+        allow_hyphen_values = true,
+        value_parser = parse_crop
     )]
-    pub crop: Option<Vec<f64>>,
+    pub crop: Option<CropBox>,
     /// Skip the statistical outlier removal.
     #[arg(long)]
     pub no_outlier_removal: bool,
@@ -47,9 +49,63 @@ pub struct Args {
     pub json: bool,
 }
 
+/// Parses `x0,y0,z0,x1,y1,z1` (metres; commas, optionally with spaces) into a crop box.
+pub fn parse_crop(s: &str) -> Result<CropBox, String> {
+    let parts: Vec<&str> = s
+        .split(|c: char| c == ',' || c.is_whitespace())
+        .filter(|p| !p.is_empty())
+        .collect();
+    if parts.len() != 6 {
+        return Err(format!(
+            "{s:?}: expected 6 numbers x0,y0,z0,x1,y1,z1 (metres, comma separated), got {}",
+            parts.len()
+        ));
+    }
+    let mut v = [0.0f64; 6];
+    for (k, p) in parts.iter().enumerate() {
+        v[k] = p
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| format!("{s:?}: {p:?} is not a finite number"))?;
+    }
+    let (lo, hi) = (
+        [v[0].min(v[3]), v[1].min(v[4]), v[2].min(v[5])],
+        [v[0].max(v[3]), v[1].max(v[4]), v[2].max(v[5])],
+    );
+    if (0..3).any(|k| lo[k] == hi[k]) {
+        return Err(format!(
+            "{s:?}: the crop box is empty (two corners share a coordinate)"
+        ));
+    }
+    Ok(CropBox { min: lo, max: hi })
+}
+
+/// The fewest points a fused cloud must have to be written (fewer cannot be registered), and the count
+/// below which a warning says the cloud is very sparse.
+const MIN_FUSED_POINTS: usize = 20;
+const FEW_FUSED_POINTS: usize = 1000;
+
 /// Runs `depthcal fuse`.
 pub fn run(a: Args) -> anyhow::Result<()> {
+    // Everything checkable before any work.
+    check_output_file("--output", &a.output, &["ply", "xyz", "txt"])?;
+    if let Some(v) = a.voxel {
+        if !(v.is_finite() && v > 0.0) {
+            anyhow::bail!("--voxel {v}: the voxel edge must be a positive number of metres");
+        }
+    }
+    if !(a.min_depth.is_finite() && a.max_depth.is_finite() && a.min_depth < a.max_depth) {
+        anyhow::bail!(
+            "--min-depth {} / --max-depth {}: need finite depths with min < max",
+            a.min_depth,
+            a.max_depth
+        );
+    }
     let cell = Cell::open(&a.cell_dir)?;
+    let mut inputs = Inputs::default();
+    inputs.add_cell(&cell);
+    inputs.check_output("--output", &a.output)?;
     let name = a
         .robot
         .clone()
@@ -61,12 +117,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     cfg.deproject.min_depth_m = a.min_depth;
     cfg.deproject.max_depth_m = a.max_depth;
-    if let Some(c) = &a.crop {
-        cfg.crop = Some(CropBox {
-            min: [c[0], c[1], c[2]],
-            max: [c[3], c[4], c[5]],
-        });
-    }
+    cfg.crop = a.crop;
     if a.no_outlier_removal {
         cfg.outlier = None;
     }
@@ -86,8 +137,26 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let fused =
         fused.with_context(|| format!("fusing robot {name:?} of {}", a.cell_dir.display()))?;
     let seconds = start.elapsed().as_secs_f64();
-    depthcal::io::write_cloud(&a.output, &fused.cloud)?;
     let s = &fused.stats;
+    if s.points_out < MIN_FUSED_POINTS {
+        anyhow::bail!(
+            "fusing robot {name:?}: the fused cloud has only {} points (voxel {} m, {} frames, {} samples): \
+             too few to register (at least {MIN_FUSED_POINTS}); {} not written. Choose a smaller --voxel",
+            s.points_out,
+            s.voxel_size_m,
+            s.frames,
+            s.points_in,
+            a.output.display()
+        );
+    }
+    if s.points_out < FEW_FUSED_POINTS {
+        eprintln!(
+            "warning: the fused cloud has only {} points (voxel {} m): too sparse for a reliable \
+             registration; choose a smaller --voxel",
+            s.points_out, s.voxel_size_m
+        );
+    }
+    depthcal::io::write_cloud(&a.output, &fused.cloud)?;
     if a.json {
         let out = serde_json::json!({
             "robot": name,

@@ -70,6 +70,21 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     config.method = a.method;
     config.refine = !a.no_refine;
     config.seed = a.seed;
+    if let Some(out) = &a.save_target_poses {
+        super::guard::check_output_file("--save-target-poses", out, &[])?;
+        let mut inputs = super::guard::Inputs::default();
+        inputs.add("--robot-poses", &a.robot_poses);
+        inputs.add_opt("--intrinsics", a.intrinsics.as_ref());
+        inputs.add_opt("--config", a.config.as_ref());
+        if let Some(dir) = &a.images {
+            if let Ok(entries) = std::fs::read_dir(dir) {
+                for e in entries.flatten() {
+                    inputs.add("an image of --images", &e.path());
+                }
+            }
+        }
+        inputs.check_output("--save-target-poses", out)?;
+    }
     let robot = read_with_hint(&a.robot_poses, a.robot_format, "--robot-format")?;
     let (robot, target, target_path) = match (&a.target_poses, &a.images) {
         (Some(p), _) => (

@@ -192,6 +192,9 @@ fn span(frames: &[depthcal::capture::FrameStamp]) -> String {
 
 /// Runs `depthcal import`.
 pub fn run(a: Args) -> anyhow::Result<()> {
+    if let (false, Some(cell_dir), Some(robot)) = (a.list, &a.cell_dir, &a.robot) {
+        check_import_outputs(&a, cell_dir, robot)?;
+    }
     let mut rec = open_recording(&a)?;
     if a.list {
         let d = rec.depth();
@@ -303,5 +306,30 @@ fn print_report(r: &ImportReport, seconds: f64, json: bool) -> anyhow::Result<()
         "intrinsics {}x{} fx {:.3} fy {:.3} ppx {:.3} ppy {:.3} {}; depth scale {} m",
         i.width, i.height, i.fx, i.fy, i.ppx, i.ppy, i.model, i.depth_scale
     );
+    Ok(())
+}
+
+/// Refuses, before any work, an import whose written files (cell.toml, the robot's pose file and
+/// intrinsics) would be one of its inputs (the recording, --poses, a --hand-eye file).
+fn check_import_outputs(a: &Args, cell_dir: &Path, robot: &str) -> anyhow::Result<()> {
+    let mut inputs = super::guard::Inputs::default();
+    inputs.add("the recording", &a.recording);
+    inputs.add_opt("--poses", a.poses.as_ref());
+    if let Some(h) = a.hand_eye.as_deref().map(Path::new).filter(|p| p.is_file()) {
+        inputs.add("--hand-eye", h);
+    }
+    let existing = depthcal::cell::CellManifest::read(cell_dir)
+        .ok()
+        .and_then(|m| m.robots.into_iter().find(|r| r.name == robot));
+    let entry = existing.unwrap_or_else(|| {
+        depthcal::cell::RobotEntry::standard(robot, nalgebra::Isometry3::identity())
+    });
+    for out in [
+        cell_dir.join(depthcal::cell::MANIFEST_FILE),
+        cell_dir.join(&entry.poses),
+        cell_dir.join(&entry.intrinsics),
+    ] {
+        inputs.check_output("CELL_DIR", &out)?;
+    }
     Ok(())
 }

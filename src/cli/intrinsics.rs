@@ -57,6 +57,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 pub fn run(a: Args) -> anyhow::Result<()> {
     use depthcal::vision::intrinsics::{calibrate_intrinsics, IntrinsicsConfig};
     let board = a.board.board()?;
+    if let Some(out) = &a.output {
+        super::guard::check_output_file("--output", out, &["json"])?;
+        let mut inputs = super::guard::Inputs::default();
+        for i in &a.images {
+            inputs.add("an input image", i);
+        }
+        inputs.add_opt("--config", a.config.as_ref());
+        inputs.check_output("--output", out)?;
+    }
     let mut cfg: IntrinsicsConfig =
         super::output::read_config(a.config.as_deref(), "intrinsics configuration")?;
     cfg.fix_aspect_ratio |= a.fix_aspect_ratio;

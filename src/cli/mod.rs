@@ -7,6 +7,7 @@ mod capture;
 mod compare;
 mod convert;
 mod fuse;
+mod guard;
 mod handeye;
 mod import;
 mod intrinsics;
@@ -15,6 +16,7 @@ mod match_cmd;
 mod methods;
 mod output;
 mod register;
+mod signals;
 mod simulate;
 mod vision_args;
 
@@ -22,7 +24,7 @@ mod vision_args;
 #[derive(Parser)]
 #[command(name = "depthcal", version, about, long_about = None)]
 struct Cli {
-    /// Worker threads (default: all cores). Results do not depend on it.
+    /// Worker threads (default: all cores; at most 8 per core). Results do not depend on it.
     #[arg(long, global = true)]
     threads: Option<usize>,
     /// More log output on stderr (-v info, -vv debug).
@@ -71,9 +73,24 @@ pub fn run() -> i32 {
     env_logger::Builder::from_env(env_logger::Env::default().default_filter_or(level))
         .format_timestamp(None)
         .init();
-    if let Some(n) = cli.threads {
-        if n == 0 {
-            eprintln!("error: --threads must be at least 1");
+    // Checked before any work: a huge count would hang starting threads.
+    let threads = match cli.threads {
+        Some(n) => Some(("--threads", n)),
+        None => match std::env::var("RAYON_NUM_THREADS") {
+            Ok(v) if !v.trim().is_empty() => match v.trim().parse::<usize>() {
+                Ok(0) => None,
+                Ok(n) => Some(("RAYON_NUM_THREADS", n)),
+                Err(_) => {
+                    eprintln!("error: RAYON_NUM_THREADS={v:?} is not a thread count");
+                    return EXIT_USAGE;
+                }
+            },
+            _ => None,
+        },
+    };
+    if let Some((what, n)) = threads {
+        if let Err(e) = guard::check_threads(what, n) {
+            eprintln!("error: {e}");
             return EXIT_USAGE;
         }
         if let Err(e) = rayon::ThreadPoolBuilder::new()
@@ -84,6 +101,7 @@ pub fn run() -> i32 {
             return EXIT_USAGE;
         }
     }
+    signals::install();
     let result = match cli.command {
         Command::Register(a) => register::run(a),
         Command::Calibrate(a) => calibrate::run(a),

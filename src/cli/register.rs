@@ -1,5 +1,6 @@
 //! `depthcal register SOURCE TARGET`.
 
+use super::guard::{check_output_file, Inputs};
 use super::output::{
     ambiguity_json, matrix4_json, matrix4_text, matrix6_json, spinner, timings_json,
 };
@@ -49,6 +50,22 @@ pub fn run(a: Args) -> Result<()> {
     if a.voxel.is_some() {
         cfg.voxel = a.voxel;
     }
+    if let Some(v) = cfg.voxel {
+        if !(v.is_finite() && v > 0.0) {
+            anyhow::bail!("--voxel {v}: the voxel size must be a positive number (cloud units)");
+        }
+    }
+    // Everything checkable before any work: the output (not an input, its directory, its extension).
+    let mut inputs = Inputs::default();
+    inputs.add("SOURCE", &a.source);
+    inputs.add("TARGET", &a.target);
+    inputs.add_opt("--init", a.init.as_ref());
+    inputs.add_opt("--truth", a.truth.as_ref());
+    inputs.add_opt("--config", a.config.as_ref());
+    if let Some(out) = &a.output {
+        check_output_file("--output", out, &["ply", "xyz", "txt"])?;
+        inputs.check_output("--output", out)?;
+    }
     let init = a.init.as_ref().map(read_matrix_file).transpose()?;
     let truth = a.truth.as_ref().map(read_matrix_file).transpose()?;
     let pb = spinner("reading clouds");
@@ -56,8 +73,33 @@ pub fn run(a: Args) -> Result<()> {
     let source = read_cloud(&a.source)?;
     let target = read_cloud(&a.target)?;
     let read_ms = t_read.elapsed().as_secs_f64() * 1e3;
+    let (es, et) = (source.extent(), target.extent());
+    if let Some(v) = cfg.voxel {
+        if v >= es.min(et) {
+            pb.finish_and_clear();
+            anyhow::bail!(
+                "voxel {v} exceeds the extent of the clouds (bounding-box diagonal: SOURCE {es:.6}, \
+                 TARGET {et:.6}, cloud units): every cloud would shrink to a few voxels; choose a voxel \
+                 well below the extent, or leave --voxel out to choose it from the data"
+            );
+        }
+    }
+    let units = scale_mismatch(es, et);
+    if let Some(u) = &units {
+        pb.suspend(|| eprintln!("warning: {u}"));
+    }
+    let big_voxel = cfg.voxel.filter(|v| *v > es.min(et) / 20.0).map(|v| {
+        format!(
+            "voxel {v} is a large fraction of the clouds' extent (bounding-box diagonal: SOURCE {es:.6}, \
+             TARGET {et:.6}): the downsampled clouds keep little geometry; try a smaller --voxel"
+        )
+    });
     let mut reg = register_with_progress(&source, &target, init.as_ref(), &cfg, &mut |stage| {
         pb.set_message(stage.to_string())
+    })
+    .map_err(|e| match units.as_ref().or(big_voxel.as_ref()) {
+        Some(u) => anyhow::Error::new(e).context(u.clone()),
+        None => anyhow::Error::new(e),
     })
     .with_context(|| {
         format!(
@@ -66,6 +108,13 @@ pub fn run(a: Args) -> Result<()> {
             a.target.display()
         )
     })?;
+    let early_warning = units.clone();
+    if let Some(u) = units {
+        if !reg.trust.trusted {
+            reg.trust.reasons.push(u.clone());
+        }
+        reg.warnings.push(u);
+    }
     reg.timings_ms.insert(0, ("read".into(), read_ms));
     if let Some(out) = a.output.as_ref().filter(|_| reg.trust.trusted) {
         pb.set_message("writing");
@@ -77,7 +126,11 @@ pub fn run(a: Args) -> Result<()> {
     }
     pb.finish_and_clear();
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
-    for w in &reg.warnings {
+    for w in reg
+        .warnings
+        .iter()
+        .filter(|w| Some(*w) != early_warning.as_ref())
+    {
         eprintln!("warning: {w}");
     }
     if let (Some(out), false) = (&a.output, reg.trust.trusted) {
@@ -190,4 +243,23 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     super::gate(&reg.trust)
+}
+
+/// The warning when two clouds' extents differ by more than 20x: most likely one is in millimetres and the
+/// other in metres.
+pub fn scale_mismatch(source_extent: f64, target_extent: f64) -> Option<String> {
+    let (lo, hi) = if source_extent < target_extent {
+        (source_extent, target_extent)
+    } else {
+        (target_extent, source_extent)
+    };
+    if lo.is_nan() || lo <= 0.0 || hi / lo <= 20.0 {
+        return None;
+    }
+    Some(format!(
+        "the extents of SOURCE ({source_extent:.6}) and TARGET ({target_extent:.6}) differ {:.0}x \
+         (bounding-box diagonals, cloud units): are they in different units (millimetres vs metres)? \
+         Registration is rigid and does not change scale; convert one cloud first",
+        hi / lo
+    ))
 }

@@ -296,6 +296,24 @@ pub fn format_from_header(header: &str) -> Option<PoseFormat> {
     PoseFormat::ALL.into_iter().find(|f| f.columns() == cols)
 }
 
+/// A piece of a pose file as an error shows it: quoted when it looks like pose-file text (at most 120
+/// characters of letters, digits, `_ , . + -` and spaces), else only its length, so that an error never
+/// echoes the content of a file that is not a pose file.
+fn shown(s: &str) -> String {
+    let s = s.trim();
+    let plausible = s.chars().count() <= 120
+        && s.chars()
+            .all(|c| c.is_ascii_alphanumeric() || " _,.+-".contains(c));
+    if plausible {
+        format!("{s:?}")
+    } else {
+        format!(
+            "({} characters, not shown: not pose-file text)",
+            s.chars().count()
+        )
+    }
+}
+
 /// Parses pose CSV text. With `format = None` the format is taken from the header. Blank lines and lines
 /// starting with `#` are skipped. Frame ids must be non-empty and unique. Errors name `path` and the line.
 pub fn parse_poses(
@@ -318,9 +336,9 @@ pub fn parse_poses(
             return Err(Error::format(
                 path,
                 format!(
-                    "line {}: header {:?} does not match pose format {f}; expected \"{}\"",
+                    "line {}: header {} does not match pose format {f}; expected \"{}\"",
                     hline + 1,
-                    header.trim(),
+                    shown(header),
                     f.header()
                 ),
             ))
@@ -329,9 +347,9 @@ pub fn parse_poses(
             return Err(Error::format(
                 path,
                 format!(
-                    "line {}: header {:?} names no known pose format; expected one of \"{}\", \"{}\", \"{}\"",
+                    "line {}: header {} names no known pose format; expected one of \"{}\", \"{}\", \"{}\"",
                     hline + 1,
-                    header.trim(),
+                    shown(header),
                     PoseFormat::Kuka.header(),
                     PoseFormat::Matrix.header(),
                     PoseFormat::Xyzquat.header()
@@ -359,14 +377,15 @@ pub fn parse_poses(
         }
         if frame.contains(['/', '\\']) || frame == ".." {
             return Err(err(format!(
-                "frame id {frame:?} must not contain a path separator"
+                "frame id {} must not contain a path separator",
+                shown(&frame)
             )));
         }
         let mut vals = Vec::with_capacity(format.value_count());
         for (name, s) in format.columns()[1..].iter().zip(&cols[1..]) {
             let v: f64 = s
                 .parse()
-                .map_err(|_| err(format!("column {name}: {s:?} is not a number")))?;
+                .map_err(|_| err(format!("column {name}: {} is not a number", shown(s))))?;
             vals.push(v);
         }
         let pose = format

@@ -1,4 +1,8 @@
 //! Atomic file output: write a temporary file beside the target, then rename it into place.
+//!
+//! The temporary file `.NAME.tmp-PID` is registered in [`crate::tempfiles`] while it exists, so that the
+//! CLI's SIGINT / SIGTERM handler removes it; stale ones of dead processes in the same directory are
+//! removed before writing.
 
 use crate::error::{Error, Result};
 use std::io::{BufWriter, Write};
@@ -27,17 +31,21 @@ pub fn write_atomically(
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| "out".into());
-    let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
+    crate::tempfiles::remove_stale_in(&dir);
+    let tmp = dir.join(crate::tempfiles::temp_name(&name));
     let result = (|| -> std::io::Result<()> {
-        let file = std::fs::File::create(&tmp)?;
+        let file = crate::tempfiles::create_registered(&tmp)?;
         let mut w = BufWriter::with_capacity(1 << 20, file);
         fill(&mut w)?;
         let file = w.into_inner().map_err(|e| e.into_error())?;
         file.sync_all()?;
         std::fs::rename(&tmp, path)
     })();
-    if let Err(e) = result {
+    if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
+    }
+    crate::tempfiles::unregister(&tmp);
+    if let Err(e) = result {
         return Err(Error::io(path, e));
     }
     Ok(())

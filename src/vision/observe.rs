@@ -152,7 +152,12 @@ pub fn find_frame_images(dir: &Path, frames: &[String]) -> Result<FrameImages> {
             .extension()
             .and_then(|x| x.to_str())
             .map(|x| x.to_ascii_lowercase());
-        if p.is_file() && ext.is_some_and(|x| IMAGE_EXTENSIONS.contains(&x.as_str())) {
+        // Hidden files (e.g. `.NAME.tmp-PID` of an interrupted write) are never frames.
+        let hidden = p
+            .file_name()
+            .and_then(|n| n.to_str())
+            .is_some_and(|n| n.starts_with('.'));
+        if !hidden && p.is_file() && ext.is_some_and(|x| IMAGE_EXTENSIONS.contains(&x.as_str())) {
             files.push(p);
         }
     }
