@@ -197,6 +197,36 @@ fn opencv_noise_protocol_refined_beats_every_closed_form() {
     assert!(refined.1 < 0.2 && refined.2 < 15.0, "{refined:?}");
 }
 
+/// The refined hand-eye's stated 1-σ holds up against its error: over 100 trials of the noise protocol
+/// (20 poses each), the error per axis over the stated 1-σ has an RMS near 1 for rotation and translation.
+#[test]
+fn hand_eye_sigma_is_honest_over_the_noise_protocol() {
+    let (mut zr, mut zt) = (Vec::new(), Vec::new());
+    for trial in 0..100 {
+        let (frames, x, _) = simulate(5000 + trial, 20, true);
+        let res = calibrate_hand_eye(&frames, &HandEyeConfig::default()).unwrap();
+        let s = res
+            .t_ee_cam_sigma
+            .expect("a refined hand-eye states its 1-sigma");
+        assert!(s.rotation_deg > 0.0 && s.translation_mm > 0.0, "{s:?}");
+        let (r, d) = err(&res.t_ee_cam, &x);
+        // Per axis: the error norm over sqrt(3) sigma.
+        zr.push(r.to_degrees() / (3f64.sqrt() * s.rotation_deg));
+        zt.push(d * 1e3 / (3f64.sqrt() * s.translation_mm));
+    }
+    let rms = |v: &[f64]| (v.iter().map(|z| z * z).sum::<f64>() / v.len() as f64).sqrt();
+    let (rr, rt) = (rms(&zr), rms(&zt));
+    let below3 = zr
+        .iter()
+        .zip(&zt)
+        .filter(|(a, b)| **a < 3.0 && **b < 3.0)
+        .count();
+    eprintln!("hand-eye 1-sigma honesty, 100 trials: normalised error RMS rotation {rr:.2}, translation {rt:.2}, {below3} of 100 below 3");
+    assert!((0.4..2.0).contains(&rr), "rotation normalised RMS {rr}");
+    assert!((0.4..2.0).contains(&rt), "translation normalised RMS {rt}");
+    assert!(below3 >= 95, "{below3} of 100 below 3");
+}
+
 /// Writes the protocol's trials as CSV for `scripts/compare_handeye.py`:
 /// `DEPTHCAL_HANDEYE_OUT=dir cargo test --release --test handeye -- --ignored write_protocol_data`.
 #[test]
@@ -698,6 +728,20 @@ fn command_json_and_text() {
     assert!(j["warnings"].is_array());
     assert_eq!(j["closed_forms"].as_array().unwrap().len(), 5);
     assert!(j["T_base_board_spread"]["rotation_rms_deg"].is_number());
+    // The 1-σ of T_ee_cam under the cell.toml key names; a cell reading this file takes them.
+    let (sd, sm) = (
+        j["hand_eye_sigma_deg"].as_f64().unwrap(),
+        j["hand_eye_sigma_mm"].as_f64().unwrap(),
+    );
+    assert!(
+        sd >= 0.0 && sm >= 0.0 && sd < 1e-3 && sm < 1e-2,
+        "{sd} {sm}"
+    );
+    let he = dir.join("hand_eye.json");
+    std::fs::write(&he, serde_json::to_string(&j).unwrap()).unwrap();
+    let (t, s) = depthcal::cell::read_hand_eye_json(&he).unwrap();
+    assert!(err(&t, &x).0 < 1e-6);
+    assert_eq!((s.rotation_deg, s.translation_mm), (Some(sd), Some(sm)));
 
     let out = depthcal(&[
         "handeye",

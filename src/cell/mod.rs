@@ -679,12 +679,47 @@ pub fn frame_path(dir: &Path, pattern: &str, frame: &str) -> PathBuf {
 /// Reads a hand-eye `T_ee_cam` JSON file: 16 numbers (row-major 4x4, metres), 4 rows of 4, or an object with a
 /// key `T_ee_cam`, `transform` or `matrix` holding either.
 pub fn read_hand_eye_file(path: &Path) -> Result<Isometry3<f64>> {
+    read_hand_eye_json(path).map(|(t, _)| t)
+}
+
+/// The 1-σ a hand-eye JSON file states for its transform (`depthcal handeye --json` writes them): the
+/// keys `hand_eye_sigma_deg` and `hand_eye_sigma_mm` of a JSON object, each optional.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct HandEyeFileSigma {
+    /// Rotation 1-σ per axis, degrees.
+    pub rotation_deg: Option<f64>,
+    /// Translation 1-σ per axis, millimetres.
+    pub translation_mm: Option<f64>,
+}
+
+/// Reads a hand-eye JSON file ([`read_hand_eye_file`]) with the 1-σ it states, if any. A stated 1-σ that
+/// is not a finite number ≥ 0 is an error naming the key.
+pub fn read_hand_eye_json(path: &Path) -> Result<(Isometry3<f64>, HandEyeFileSigma)> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let v: serde_json::Value = serde_json::from_str(&text)
         .map_err(|e| Error::format(path, format!("not valid JSON: {e}")))?;
     let m =
         matrix_from_json(&v).map_err(|m| Error::format(path, format!("hand-eye T_ee_cam: {m}")))?;
-    isometry_from_rows(&m, "T_ee_cam").map_err(|e| Error::format(path, e.to_string()))
+    let t = isometry_from_rows(&m, "T_ee_cam").map_err(|e| Error::format(path, e.to_string()))?;
+    let sigma = |key: &str| -> Result<Option<f64>> {
+        match v.get(key) {
+            None | Some(serde_json::Value::Null) => Ok(None),
+            Some(x) => match x.as_f64() {
+                Some(s) if s.is_finite() && s >= 0.0 => Ok(Some(s)),
+                _ => Err(Error::format(
+                    path,
+                    format!("`{key}` must be a finite number >= 0, got {x}"),
+                )),
+            },
+        }
+    };
+    Ok((
+        t,
+        HandEyeFileSigma {
+            rotation_deg: sigma("hand_eye_sigma_deg")?,
+            translation_mm: sigma("hand_eye_sigma_mm")?,
+        },
+    ))
 }
 
 impl Cell {
@@ -754,13 +789,17 @@ impl Cell {
         ))?;
         let intrinsics =
             Intrinsics::from_json_file(&intr_path).map_err(quiet(&intr_path, "intrinsics file"))?;
-        let t_ee_cam = match (&e.hand_eye, &hand_eye_path) {
-            (HandEyeSpec::Inline(t), _) => *t,
+        let (t_ee_cam, file_sigma) = match (&e.hand_eye, &hand_eye_path) {
+            (HandEyeSpec::Inline(t), _) => (*t, HandEyeFileSigma::default()),
             (HandEyeSpec::File(_), Some(p)) => {
-                read_hand_eye_file(p).map_err(quiet(p, "hand-eye file"))?
+                read_hand_eye_json(p).map_err(quiet(p, "hand-eye file"))?
             }
-            (HandEyeSpec::File(p), None) => read_hand_eye_file(&dir.join(p))?,
+            (HandEyeSpec::File(p), None) => read_hand_eye_json(&dir.join(p))?,
         };
+        // The robot entry's own 1-σ keys win; else those of the hand-eye file; else the defaults.
+        let mut stated = e.clone();
+        stated.hand_eye_sigma_deg = e.hand_eye_sigma_deg.or(file_sigma.rotation_deg);
+        stated.hand_eye_sigma_mm = e.hand_eye_sigma_mm.or(file_sigma.translation_mm);
         let mut robot = CellRobot {
             name: e.name.clone(),
             intrinsics,
@@ -769,7 +808,7 @@ impl Cell {
             intrinsics_path: intr_path,
             hand_eye_path,
             frames: Vec::with_capacity(records.len()),
-            uncertainty: RobotUncertainty::from_entry(e),
+            uncertainty: RobotUncertainty::from_entry(&stated),
         };
         for PoseRecord { frame, pose, line } in records {
             let depth_rel = e.depth.replace(FRAME_PLACEHOLDER, &frame);

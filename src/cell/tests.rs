@@ -218,3 +218,44 @@ fn problems_are_errors_naming_file_and_row() {
     assert!(e.contains("nope"), "{e}");
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// A hand-eye JSON file's `hand_eye_sigma_deg` / `hand_eye_sigma_mm` (as `depthcal handeye --json`
+/// writes them) enter the robot's uncertainty unless the robot entry states its own; a bad value is an
+/// error naming the file and the key.
+#[test]
+fn hand_eye_file_sigma_is_taken_unless_the_entry_states_one() {
+    let dir = tmpdir("he-sigma");
+    let mut m = write_cell(&dir, 3);
+    let rows = crate::geometry::transform::isometry_to_nested(&hand_eye());
+    let write_he = |extra: serde_json::Value| {
+        let mut v = serde_json::json!({ "T_ee_cam": rows });
+        v.as_object_mut()
+            .unwrap()
+            .extend(extra.as_object().unwrap().clone());
+        std::fs::write(dir.join("b/hand_eye.json"), v.to_string()).unwrap();
+    };
+    let b = |cell: &Cell| cell.robots[1].uncertainty.clone();
+    // No sigma in the file: the defaults.
+    let plain = b(&Cell::open(&dir).unwrap());
+    assert_eq!(plain, RobotUncertainty::default());
+    // The file's sigma.
+    write_he(serde_json::json!({"hand_eye_sigma_deg": 0.02, "hand_eye_sigma_mm": 0.3}));
+    let u = b(&Cell::open(&dir).unwrap());
+    assert!((u.hand_eye_rotation_rad - 0.02f64.to_radians()).abs() < 1e-15);
+    assert!((u.hand_eye_translation_m - 0.3e-3).abs() < 1e-15);
+    assert!(u.stated.contains(&"hand_eye_sigma_mm".to_string()));
+    // The entry's own key wins over the file's.
+    m.robots[1].hand_eye_sigma_mm = Some(1.5);
+    m.write(&dir).unwrap();
+    let u = b(&Cell::open(&dir).unwrap());
+    assert!((u.hand_eye_translation_m - 1.5e-3).abs() < 1e-15);
+    assert!((u.hand_eye_rotation_rad - 0.02f64.to_radians()).abs() < 1e-15);
+    // A negative sigma in the file is an error naming it and the key.
+    write_he(serde_json::json!({"hand_eye_sigma_deg": -1.0}));
+    let e = open_err(&dir);
+    assert!(
+        e.contains("hand_eye.json") && e.contains("hand_eye_sigma_deg"),
+        "{e}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

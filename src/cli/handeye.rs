@@ -328,6 +328,12 @@ fn to_json(r: &HandEyeResult, a: &Args, x_name: &str, z_name: &str) -> serde_jso
         "sigma".into(),
         json!({"rotation_deg": r.sigma_rotation_deg, "translation_mm": r.sigma_translation_mm}),
     );
+    // The 1-σ of the estimate under the names a cell.toml robot entry uses: a cell whose `hand_eye` names
+    // this file takes them unless it states its own.
+    if let Some(s) = r.t_ee_cam_sigma {
+        o.insert("hand_eye_sigma_deg".into(), json!(s.rotation_deg));
+        o.insert("hand_eye_sigma_mm".into(), json!(s.translation_mm));
+    }
     o.insert("iterations".into(), json!(r.iterations));
     o.insert("converged".into(), json!(r.converged));
     serde_json::Value::Object(o)
@@ -384,6 +390,12 @@ fn print_text(r: &HandEyeResult, a: &Args, x_name: &str, z_name: &str) {
     );
     println!();
     print!("{}", pose_text(x_name, &r.t_ee_cam));
+    if let Some(s) = r.t_ee_cam_sigma {
+        println!(
+            "  1-sigma of {x_name} (per axis, statistical): rotation {:.4}°, translation {:.3} mm (hand_eye_sigma_deg / hand_eye_sigma_mm in --json)",
+            s.rotation_deg, s.translation_mm
+        );
+    }
     println!();
     print!("{}", pose_text(z_name, &r.t_base_board));
     println!(

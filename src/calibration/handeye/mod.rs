@@ -329,6 +329,10 @@ pub struct HandEyeResult {
     pub sigma_rotation_deg: f64,
     /// Residual scale of the inliers, translation, millimetres (RMS per axis).
     pub sigma_translation_mm: f64,
+    /// 1-σ of the estimated `T_ee_cam` (statistical part: `s²(JᵀJ)⁻¹` of the refined inlier frames, RMS per
+    /// axis): rotation in degrees, translation in millimetres. `None` without refinement. A cell's
+    /// `hand_eye_sigma_deg` / `hand_eye_sigma_mm` take it from a hand-eye JSON file that carries it.
+    pub t_ee_cam_sigma: Option<HandEyeSigma>,
     /// LM iterations (both passes).
     pub iterations: usize,
     /// Whether the refinement converged.
@@ -789,6 +793,7 @@ pub fn calibrate_hand_eye(
     let mut iterations = 0;
     let mut converged = true;
     let mut normalized = vec![0.0; n];
+    let mut t_ee_cam_sigma = None;
     if config.refine {
         let all = vec![true; n];
         let (sr, st) = robust_sigmas(&frame_residuals(frames, &x, &z));
@@ -863,6 +868,11 @@ pub fn calibrate_hand_eye(
         for (i, r) in res.iter().enumerate() {
             normalized[i] = norm_of(r, sr2, st2);
         }
+        t_ee_cam_sigma =
+            refine::hand_eye_sigma(frames, &active, &x, &z, sr2, st2).map(|(r, t)| HandEyeSigma {
+                rotation_deg: r.to_degrees(),
+                translation_mm: t * 1e3,
+            });
         if !converged {
             warnings.push(format!(
                 "the refinement did not converge in {} iterations",
@@ -948,10 +958,20 @@ pub fn calibrate_hand_eye(
         board,
         sigma_rotation_deg,
         sigma_translation_mm,
+        t_ee_cam_sigma,
         iterations,
         converged,
         warnings,
     })
+}
+
+/// The 1-σ of an estimated hand-eye transform, RMS per axis.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HandEyeSigma {
+    /// Rotation, degrees.
+    pub rotation_deg: f64,
+    /// Translation, millimetres.
+    pub translation_mm: f64,
 }
 
 /// Matches robot poses (`T_base_ee`) and target poses (`T_cam_board`) by frame id, in the robot file's

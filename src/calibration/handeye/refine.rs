@@ -125,6 +125,65 @@ fn cost(
         .sum()
 }
 
+/// Central-difference step of the Jacobians (radians and metres).
+const H: f64 = 1e-7;
+
+/// The Jacobian of one frame's whitened residual with respect to the right increments of `(X, Z)`.
+fn jacobian(
+    f: &HandEyeFrame,
+    x: &Isometry3<f64>,
+    z: &Isometry3<f64>,
+    sigma_r: f64,
+    sigma_t: f64,
+) -> SMatrix<f64, 6, 12> {
+    let mut j = SMatrix::<f64, 6, 12>::zeros();
+    for k in 0..12 {
+        let mut d = SVector::<f64, 12>::zeros();
+        d[k] = H;
+        let (xp, zp) = apply(x, z, &d);
+        let (xm, zm) = apply(x, z, &(-d));
+        let col = (residual(f, &xp, &zp, sigma_r, sigma_t)
+            - residual(f, &xm, &zm, sigma_r, sigma_t))
+            / (2.0 * H);
+        j.set_column(k, &col);
+    }
+    j
+}
+
+/// The 1-σ of `X = T_ee_cam` at `(x, z)` from the active frames: `s² (JᵀJ)⁻¹` of the whitened residuals,
+/// with `s²` their reduced χ² (so the scales `sigma_r`, `sigma_t` only set the relative weighting), its
+/// rotation block and translation block each reduced to an RMS per axis: `(radians, metres)`, the right
+/// increment of `X` (camera frame). `None` when fewer than three frames are active or the normal
+/// equations are singular. This is the statistical part only: a bias shared by every frame (a wrong board
+/// size, intrinsics) does not show in it.
+pub fn hand_eye_sigma(
+    frames: &[HandEyeFrame],
+    active: &[bool],
+    x: &Isometry3<f64>,
+    z: &Isometry3<f64>,
+    sigma_r: f64,
+    sigma_t: f64,
+) -> Option<(f64, f64)> {
+    let mut hess = SMatrix::<f64, 12, 12>::zeros();
+    let mut chi2 = 0.0;
+    let mut m = 0usize;
+    for (f, _) in frames.iter().zip(active).filter(|(_, a)| **a) {
+        let r = residual(f, x, z, sigma_r, sigma_t);
+        let j = jacobian(f, x, z, sigma_r, sigma_t);
+        hess += j.transpose() * j;
+        chi2 += r.norm_squared();
+        m += 1;
+    }
+    if m < 3 {
+        return None;
+    }
+    let dof = (6 * m).saturating_sub(12).max(1) as f64;
+    let cov = hess.try_inverse()? * (chi2 / dof);
+    let rot = (cov[(0, 0)] + cov[(1, 1)] + cov[(2, 2)]) / 3.0;
+    let tr = (cov[(3, 3)] + cov[(4, 4)] + cov[(5, 5)]) / 3.0;
+    (rot.is_finite() && tr.is_finite() && rot >= 0.0 && tr >= 0.0).then(|| (rot.sqrt(), tr.sqrt()))
+}
+
 /// Refines `(X, Z)` from `(x0, z0)` over the frames with `active[i]`, with residual scales `sigma_r`
 /// (radians) and `sigma_t` (metres), the robust `kernel`, and at most `max_iterations` LM iterations.
 ///
@@ -146,7 +205,6 @@ pub fn refine(
     let mut current = cost(frames, active, &x, &z, sigma_r, sigma_t, kernel);
     let mut converged = false;
     let mut iterations = 0;
-    const H: f64 = 1e-7;
     for _ in 0..max_iterations {
         iterations += 1;
         let mut hess = SMatrix::<f64, 12, 12>::zeros();
@@ -154,17 +212,7 @@ pub fn refine(
         for (f, _) in frames.iter().zip(active).filter(|(_, a)| **a) {
             let r = residual(f, &x, &z, sigma_r, sigma_t);
             let w = kernel.weight(r.norm());
-            let mut j = SMatrix::<f64, 6, 12>::zeros();
-            for k in 0..12 {
-                let mut d = SVector::<f64, 12>::zeros();
-                d[k] = H;
-                let (xp, zp) = apply(&x, &z, &d);
-                let (xm, zm) = apply(&x, &z, &(-d));
-                let col = (residual(f, &xp, &zp, sigma_r, sigma_t)
-                    - residual(f, &xm, &zm, sigma_r, sigma_t))
-                    / (2.0 * H);
-                j.set_column(k, &col);
-            }
+            let j = jacobian(f, &x, &z, sigma_r, sigma_t);
             hess += j.transpose() * j * w;
             grad += j.transpose() * r * w;
         }
