@@ -141,3 +141,49 @@ fn featureless_scene_is_degenerate_not_silently_wrong() {
         }
     }
 }
+
+/// Cells whose hand-eyes are off by the documented default 1-σ (0.05° / 0.5 mm per axis, seeded random
+/// perturbations of both robots; the depth stays rendered with the true hand-eyes): the covariance
+/// includes the hand-eye uncertainty, so the normalised error of the whole pose stays below 3, and a
+/// result reported as trusted is within what the covariance allows. The README's distribution comes from
+/// `cell_sweep` with `DEPTHCAL_SWEEP_HANDEYE=0.05,0.5` over 20 seeds.
+#[test]
+fn perturbed_hand_eyes_stay_within_the_reported_uncertainty() {
+    use depthcal::geometry::Rng;
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+    for seed in [11u64, 12, 13] {
+        let dir = scratch(&format!("sim-he-{seed}"));
+        simulate_cell(&sim(seed), &dir, &|_| {}).unwrap();
+        let mut cell = Cell::open(&dir).unwrap();
+        let mut rng = Rng::new(seed);
+        for r in &mut cell.robots {
+            let mut g = || rng.normal();
+            let w = Vector3::new(g(), g(), g()) * 0.05f64.to_radians();
+            let t = Vector3::new(g(), g(), g()) * 0.5e-3;
+            r.t_ee_cam =
+                Isometry3::from_parts(Translation3::from(t), UnitQuaternion::from_scaled_axis(w))
+                    * r.t_ee_cam;
+        }
+        let c = calibrate(
+            &cell,
+            &GlobalRegistration::default(),
+            &CalibrateConfig::default(),
+            &mut |_| {},
+        )
+        .unwrap();
+        let (r, t) = c.error_vs_truth.unwrap();
+        let ne = c.normalised_error.as_ref().expect("ground truth is known");
+        eprintln!(
+            "seed {seed} (hand-eyes perturbed): {r:.4} deg, {:.3} mm, normalised {:.2}, trusted {}",
+            t * 1e3,
+            ne.pose,
+            c.trust.trusted
+        );
+        assert!(
+            ne.pose < 3.0,
+            "seed {seed}: normalised error {:.2}",
+            ne.pose
+        );
+        assert!(r < 1.0 && t < 0.01, "seed {seed}: {r} deg {t} m");
+    }
+}
