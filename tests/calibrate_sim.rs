@@ -1,7 +1,7 @@
 //! `calibrate` on seeded simulated cells with exact ground truth: accuracy at default noise over several
 //! seeds, cells whose robots share only 30-50% of the scene, honesty of the reported covariance, and a
 //! featureless scene reported as degenerate. `DEPTHCAL_SIM_SEEDS=N` runs N seeds (default 4; the README's
-//! figures come from `examples/cell_sweep.rs` over 20).
+//! figures come from `tools/cell_sweep.rs` over 20).
 
 mod common;
 use common::scratch;
