@@ -47,8 +47,7 @@ fn fenced_blocks(text: &str) -> Vec<(String, Vec<String>)> {
 /// Splits a command line into words: whitespace separated, '...' and "..." quote, `#` starts a comment.
 fn split_words(s: &str) -> (Vec<String>, String) {
     let (mut words, mut cur, mut quote, mut in_word) = (Vec::new(), String::new(), None, false);
-    let mut chars = s.char_indices();
-    while let Some((i, c)) = chars.next() {
+    for (i, c) in s.char_indices() {
         match (quote, c) {
             (Some(q), c) if c == q => quote = None,
             (Some(_), c) => cur.push(c),
