@@ -10,7 +10,7 @@
 # so the 2.56 wheel is installed beside it (Python only, never linked) to write the .bag recordings.
 #
 # Idempotent: a second run finds everything in place and only exports the variables. Users install Intel's
-# librealsense packages instead (see the README).
+# librealsense packages instead (see docs/capture.md).
 
 rs_version="2.59.1"
 rs_wheel="pyrealsense2==2.59.1.11053"

@@ -2,7 +2,7 @@
 //!
 //! A point-cloud registration engine for depth-only calibration of multi-robot cells.
 //!
-//! The pipeline is a chain of plain functions over plain data (see `ARCHITECTURE` in the README):
+//! The pipeline is a chain of plain functions over plain data (see `docs/architecture.md`):
 //! [`io`] reads clouds, [`preprocess`] downsamples and estimates normals, [`features`] computes FPFH,
 //! [`registration`] matches features, runs RANSAC and refines with trimmed robust ICP.
 //!

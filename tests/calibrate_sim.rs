@@ -1,7 +1,7 @@
 //! `calibrate` on seeded simulated cells with exact ground truth: accuracy at default noise over several
 //! seeds, cells whose robots share only 30-50% of the scene, honesty of the reported covariance, and a
-//! featureless scene reported as degenerate. `DEPTHCAL_SIM_SEEDS=N` runs N seeds (default 4; the README's
-//! figures come from `examples/cell_sweep.rs` over 20).
+//! featureless scene reported as degenerate. `DEPTHCAL_SIM_SEEDS=N` runs N seeds (default 4; the
+//! figures of docs/accuracy.md come from `tools/cell_sweep.rs` over 20).
 
 mod common;
 use common::scratch;
@@ -88,7 +88,7 @@ fn seeded_cells_at_default_noise() {
 
 /// Cells whose robots share only 30-50% of what they see (checked on the rendered frames): the global
 /// stage must find the right basin and the refinement must land close to the truth. At these overlaps a
-/// few cells keep a yaw bias of up to 0.8° (ICP started at the truth settles there too; see the README),
+/// few cells keep a yaw bias of up to 0.8° (ICP started at the truth settles there too; see docs/accuracy.md),
 /// hence the looser bound.
 #[test]
 fn cells_sharing_30_to_50_percent() {

@@ -7,7 +7,7 @@ mod common;
 use common::{data, depthcal, scratch};
 use std::path::{Path, PathBuf};
 
-/// Exit status of an untrusted result (documented in the README).
+/// Exit status of an untrusted result (documented in docs/trust.md).
 const UNTRUSTED: i32 = 3;
 /// Exit status of bad input.
 const BAD_INPUT: i32 = 1;

@@ -69,7 +69,7 @@ impl Default for CalibrateConfig {
                 icp_levels: 3,
                 // GICP with Tukey's kernel: from the truth on simulated cells it settles at a median
                 // 0.010° / 0.15 mm (worst of 6: 0.037° / 0.31 mm) where point-to-plane with Huber settled at
-                // 0.059° / 0.79 mm (worst 0.126° / 1.66 mm) (`examples/refine_probe.rs`).
+                // 0.059° / 0.79 mm (worst 0.126° / 1.66 mm) (`tools/refine_probe.rs`).
                 icp: IcpConfig {
                     factor: IcpFactor::Gicp,
                     kernel: RobustKernel::Tukey,

@@ -33,7 +33,7 @@ pub struct Args {
     /// Global-stage voxel size in the clouds' unit (default: chosen from the data).
     #[arg(long)]
     voxel: Option<f64>,
-    /// A JSON file with a (partial) registration configuration; see the README.
+    /// A JSON file with a (partial) registration configuration; see docs/register.md.
     #[arg(long)]
     config: Option<PathBuf>,
     /// A known true SOURCE→TARGET transform (4x4 matrix file): also print the error against it.

@@ -54,7 +54,7 @@ pub struct Args {
     /// Give the objects and the table a distinctive texture (for the 2D-feature method).
     #[arg(long)]
     pub textured: bool,
-    /// A JSON file with any fields of SimConfig (see the README's `depthcal simulate` section); the flags above override it.
+    /// A JSON file with any fields of SimConfig (see `docs/simulate.md`); the flags above override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Write into a non-empty directory, replacing files of the same names.

@@ -38,7 +38,7 @@ pub enum IcpFactor {
     /// Generalized ICP (Segal et al. 2009, plane-to-plane): the Mahalanobis distance under the sum of both
     /// points' local surface covariances (needs source and target covariances). Less biased than
     /// point-to-plane where the two clouds sample a surface differently (measured on simulated cells from
-    /// the truth: see the README).
+    /// the truth: see docs/accuracy.md).
     Gicp,
 }
 

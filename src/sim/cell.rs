@@ -617,7 +617,7 @@ impl SimCell {
         m
     }
 
-    /// The ground truth: `T_base1_base2`, and every other true transform and setting (see the README's `depthcal simulate` section).
+    /// The ground truth: `T_base1_base2`, and every other true transform and setting (see `docs/simulate.md`).
     pub fn ground_truth(&self) -> GroundTruth {
         use serde_json::{json, Value};
         let nested = |t: &Isometry3<f64>| serde_json::to_value(isometry_to_nested(t)).unwrap();
