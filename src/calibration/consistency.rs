@@ -701,9 +701,8 @@ fn judge(
             f.consistent = false;
         }
         let what = format!(
-            "robot {}'s frames disagree with each other: median residual {:.1} mm (limit {:.1} mm), {:.0}% of \
+            "its frames disagree with each other: median residual {:.1} mm (limit {:.1} mm), {:.0}% of \
              the tests in free space another frame saw through, {} of {} frames off on their own",
-            robot.name,
             robot_med * 1e3,
             robot_thr * 1e3,
             robot_free * 100.0,

@@ -503,7 +503,7 @@ fn calibration_trust(
     for r in c.consistency.iter().filter(|r| !r.consistent) {
         t.fail(
             format!(
-                "robot {:?}'s own frames disagree with each other: {}",
+                "robot {:?}'s own frames are not consistent: {}",
                 r.robot,
                 r.findings.join("; ")
             ),
