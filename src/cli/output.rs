@@ -168,6 +168,27 @@ mod tests {
     }
 
     #[test]
+    fn an_empty_file_gives_the_defaults() {
+        fn same<T: serde::de::DeserializeOwned + serde::Serialize + Default>() {
+            let c: T = config_from_json("{}").unwrap();
+            assert_eq!(
+                serde_json::to_value(&c).unwrap(),
+                serde_json::to_value(T::default()).unwrap()
+            );
+        }
+        same::<RegisterConfig>();
+        same::<CalibrateConfig>();
+        same::<depthcal::calibration::handeye::HandEyeConfig>();
+        #[cfg(feature = "sim")]
+        same::<depthcal::sim::SimConfig>();
+        #[cfg(feature = "vision")]
+        {
+            same::<depthcal::vision::markers::MarkerConfig>();
+            same::<depthcal::vision::intrinsics::IntrinsicsConfig>();
+        }
+    }
+
+    #[test]
     fn unknown_keys_are_named() {
         let e = config_from_json::<RegisterConfig>(r#"{"voxle": 0.03}"#).unwrap_err();
         assert!(format!("{e:#}").contains("voxle"), "{e:#}");
