@@ -230,8 +230,10 @@ mod tests {
         .validate()
         .unwrap_err();
         assert!(e.to_string().contains("max_range_factor"), "{e}");
-        let mut i = IcpConfig::default();
-        i.max_correspondence_distance = 0.0;
+        let i = IcpConfig {
+            max_correspondence_distance: 0.0,
+            ..Default::default()
+        };
         assert_eq!(field(i.validate()), "icp.max_correspondence_distance");
     }
 
