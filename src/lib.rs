@@ -9,6 +9,13 @@
 //! Conventions: `T_a_b` maps coordinates in frame b to frame a (`p_a = T_a_b · p_b`); SI units inside
 //! (metres, radians); point coordinates are `f32`, transforms and sums `f64`; every randomised step takes a
 //! seed and gives bit-identical output at any thread count.
+//!
+//! Cargo features: `cli` (the `depthcal` binary), `sim` (the ray-casting simulator, parry3d) and `rosbag`
+//! (ROS1 `.bag` import) are on by default; `vision` (OpenCV) and `realsense` (librealsense) are opt-in.
+//! `--no-default-features` builds the library alone.
+
+#![warn(missing_docs)]
+#![warn(rustdoc::broken_intra_doc_links)]
 
 pub mod calibration;
 pub mod camera;

@@ -33,6 +33,13 @@ impl Default for AverageConfig {
     }
 }
 
+impl AverageConfig {
+    /// Checks the ranges; the error names the field (`average.…`).
+    pub fn validate(&self) -> crate::Result<()> {
+        crate::error::check::positive("average.tolerance", self.tolerance)
+    }
+}
+
 /// Angle of the rotation taking `a` to `b`, radians in `[0, π]`; accurate for tiny angles too (it uses
 /// `atan2`, not `acos`).
 pub fn rotation_angle_between(a: &UnitQuaternion<f64>, b: &UnitQuaternion<f64>) -> f64 {

@@ -1,7 +1,7 @@
 //! Robot-to-robot by 2D visual features lifted to 3D with depth.
 //!
 //! Keypoints of both robots' colour images are lifted to 3D with the aligned depth and brought into each
-//! robot's base; matched across the robots (`vision` feature: [`crate::vision::feature_lift`]) they are
+//! robot's base; matched across the robots (`vision` feature: `crate::vision::feature_lift`) they are
 //! 3D-3D correspondences base2 → base1, from which RANSAC over minimal samples of three with the
 //! closed-form rigid fit (Arun / Umeyama without scale) finds `T_base1_base2`, refitted on all inliers
 //! ([`ransac_rigid`]).
@@ -41,6 +41,17 @@ impl Default for RigidRansacConfig {
             min_inliers: 8,
             refine_rounds: 3,
         }
+    }
+}
+
+impl RigidRansacConfig {
+    /// Checks the ranges; the error names the field (`ransac.…`).
+    pub fn validate(&self) -> Result<()> {
+        use crate::error::check;
+        check::positive("ransac.inlier_m", self.inlier_m)?;
+        check::at_least("ransac.max_iterations", self.max_iterations, 1)?;
+        check::fraction("ransac.confidence", self.confidence)?;
+        check::at_least("ransac.min_inliers", self.min_inliers, 3)
     }
 }
 
@@ -238,6 +249,31 @@ impl Default for FeatureMethodConfig {
             max_depth_step_m: 0.01,
             ransac: RigidRansacConfig::default(),
         }
+    }
+}
+
+impl FeatureMethodConfig {
+    /// Checks the ranges; the error names the field (`features.…`).
+    pub fn validate(&self) -> Result<()> {
+        use crate::error::check;
+        if !matches!(
+            self.detector.trim().to_ascii_lowercase().as_str(),
+            "sift" | "orb" | "akaze"
+        ) {
+            return Err(Error::config(
+                "features.detector",
+                format!(
+                    "unknown detector {:?} (expected sift, orb or akaze)",
+                    self.detector
+                ),
+            ));
+        }
+        check::at_least("features.max_per_image", self.max_per_image, 1)?;
+        check::fraction("features.ratio", self.ratio)?;
+        check::positive("features.place_radius_m", self.place_radius_m)?;
+        check::at_least("features.knn", self.knn, 1)?;
+        check::positive("features.max_depth_step_m", self.max_depth_step_m)?;
+        self.ransac.validate().map_err(|e| e.within("features"))
     }
 }
 

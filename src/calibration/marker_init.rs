@@ -53,6 +53,17 @@ impl Default for MarkerMethodConfig {
     }
 }
 
+impl MarkerMethodConfig {
+    /// Checks the ranges; the error names the field (`marker.…`).
+    pub fn validate(&self) -> Result<()> {
+        use crate::error::check;
+        self.depth.validate().map_err(|e| e.within("marker"))?;
+        check::positive("marker.max_rms_px", self.max_rms_px)?;
+        check::positive("marker.outlier_deg", self.outlier_deg)?;
+        check::positive("marker.outlier_mm", self.outlier_mm)
+    }
+}
+
 /// Settings of [`refine_with_depth`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -79,6 +90,22 @@ impl Default for DepthPlaneConfig {
             max_plane_rms_m: 0.006,
             max_scale_disagreement: 0.1,
         }
+    }
+}
+
+impl DepthPlaneConfig {
+    /// Checks the ranges; the error names the field (`depth.…`).
+    pub fn validate(&self) -> Result<()> {
+        use crate::error::check;
+        if !(0.0..1.0).contains(&self.shrink) {
+            return Err(Error::config(
+                "depth.shrink",
+                format!("must be a fraction in [0, 1), got {}", self.shrink),
+            ));
+        }
+        check::at_least("depth.min_points", self.min_points, 3)?;
+        check::positive("depth.max_plane_rms_m", self.max_plane_rms_m)?;
+        check::positive("depth.max_scale_disagreement", self.max_scale_disagreement)
     }
 }
 

@@ -111,6 +111,22 @@ impl Default for CalibrateConfig {
     }
 }
 
+impl CalibrateConfig {
+    /// Checks the ranges of every field and nested configuration; the error names the field, e.g.
+    /// `register.icp.max_iterations`. [`calibrate`] and [`initialize_only`] call it first.
+    pub fn validate(&self) -> Result<()> {
+        self.fuse.validate()?;
+        self.register.validate().map_err(|e| e.within("register"))?;
+        self.marker.validate()?;
+        self.features.validate()?;
+        self.consistency.validate()?;
+        if let Some(f) = self.max_range_factor {
+            crate::error::check::positive("max_range_factor", f)?;
+        }
+        Ok(())
+    }
+}
+
 /// The result of [`calibrate`].
 #[derive(Clone, Debug)]
 pub struct Calibration {
@@ -306,6 +322,7 @@ pub fn calibrate(
     cfg: &CalibrateConfig,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Calibration> {
+    cfg.validate()?;
     let (reference, other) = robot_pair(cell)?;
     progress(&format!(
         "fusing {} frames of {} and {} of {}",
@@ -328,6 +345,7 @@ pub fn initialize_only(
     cfg: &CalibrateConfig,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Calibration> {
+    cfg.validate()?;
     let fused = if initializer.needs_clouds() {
         progress("fusing both robots' frames");
         fuse_cell(cell, cfg)?

@@ -46,6 +46,17 @@ impl Default for VisibilityConfig {
     }
 }
 
+impl VisibilityConfig {
+    /// Checks the ranges; the error names the field (`visibility.…`).
+    pub fn validate(&self) -> crate::Result<()> {
+        use crate::error::check;
+        check::at_least("visibility.sample_points", self.sample_points, 1)?;
+        check::non_negative("visibility.margin_m", self.margin_m)?;
+        check::non_negative("visibility.max_self_violation", self.max_self_violation)?;
+        check::positive("visibility.penalty_scale", self.penalty_scale)
+    }
+}
+
 /// One robot's side of the free-space test: its fused points (base frame), optionally the side each was
 /// seen from (unit directions toward its cameras, [`crate::fusion::FusedCloud::sight_directions`]), and its
 /// frames' depth views.

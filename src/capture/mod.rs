@@ -14,6 +14,7 @@
 //!   reader of [`rosbag`] (default build), and, with the cargo feature `realsense`, anything librealsense
 //!   plays back (`realsense` module: ROS2 `.db3`, ROS1 `.bag`) plus live capture from a camera.
 
+#[cfg(feature = "rosbag")]
 pub mod rosbag;
 
 #[cfg(feature = "realsense")]
@@ -126,7 +127,7 @@ fn check_frame_id(id: &str, origin: &str) -> Result<()> {
 /// Largest relative difference between two intrinsics values still taken as equal.
 const INTRINSICS_TOLERANCE: f64 = 1e-9;
 
-/// The first field in which `a` and `b` differ (beyond [`INTRINSICS_TOLERANCE`]), as `(field, a, b)`.
+/// The first field in which `a` and `b` differ (beyond `INTRINSICS_TOLERANCE`), as `(field, a, b)`.
 pub fn intrinsics_difference(a: &Intrinsics, b: &Intrinsics) -> Option<(String, String, String)> {
     let close =
         |x: f64, y: f64| (x - y).abs() <= INTRINSICS_TOLERANCE * x.abs().max(y.abs()).max(1.0);

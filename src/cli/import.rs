@@ -3,7 +3,6 @@
 
 use anyhow::{bail, Context};
 use clap::{Args as ClapArgs, ValueEnum};
-use depthcal::capture::rosbag::{BagImportConfig, BagRecording};
 use depthcal::capture::{
     import_recording, ImportReport, MatchConfig, MatchMode, PoseRows, Recording, RobotSetup,
 };
@@ -132,29 +131,42 @@ fn open_recording(a: &Args) -> anyhow::Result<Box<dyn Recording>> {
         (r, _) => r,
     };
     match reader {
-        Reader::Rosbag => {
-            let cfg = BagImportConfig {
-                depth_topic: a.topic.clone(),
-                camera_info_topic: a.camera_info_topic.clone(),
-                color: a.color,
-                color_topic: a.color_topic.clone(),
-                depth_scale: a.depth_scale,
-            };
-            let bag = BagRecording::open(&a.recording, &cfg)?;
-            log::info!(
-                "{}: depth {} ({} frames), intrinsics from {}, depth scale {} m ({})",
-                a.recording.display(),
-                bag.depth().name,
-                bag.depth().frames.len(),
-                bag.camera_info_topic,
-                bag.intrinsics().depth_scale,
-                bag.depth_scale_source
-            );
-            Ok(Box::new(bag))
-        }
+        Reader::Rosbag => open_rosbag(a),
         Reader::Librealsense => open_librealsense(a),
         Reader::Auto => unreachable!("resolved above"),
     }
+}
+
+#[cfg(feature = "rosbag")]
+fn open_rosbag(a: &Args) -> anyhow::Result<Box<dyn Recording>> {
+    use depthcal::capture::rosbag::{BagImportConfig, BagRecording};
+    let cfg = BagImportConfig {
+        depth_topic: a.topic.clone(),
+        camera_info_topic: a.camera_info_topic.clone(),
+        color: a.color,
+        color_topic: a.color_topic.clone(),
+        depth_scale: a.depth_scale,
+    };
+    let bag = BagRecording::open(&a.recording, &cfg)?;
+    log::info!(
+        "{}: depth {} ({} frames), intrinsics from {}, depth scale {} m ({})",
+        a.recording.display(),
+        bag.depth().name,
+        bag.depth().frames.len(),
+        bag.camera_info_topic,
+        bag.intrinsics().depth_scale,
+        bag.depth_scale_source
+    );
+    Ok(Box::new(bag))
+}
+
+#[cfg(not(feature = "rosbag"))]
+fn open_rosbag(a: &Args) -> anyhow::Result<Box<dyn Recording>> {
+    bail!(
+        "{}: reading ROS1 .bag files needs the `rosbag` feature (on by default), and this depthcal was built \
+         without it; rebuild with `cargo build --release --features rosbag`",
+        a.recording.display()
+    )
 }
 
 #[cfg(feature = "realsense")]

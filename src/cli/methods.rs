@@ -63,6 +63,7 @@ impl CalibrateSettings {
             super::output::read_config(self.config.as_deref(), "calibrate configuration")?;
         cfg.seed = self.seed;
         cfg.use_priors = !self.no_priors;
+        cfg.validate()?;
         Ok(cfg)
     }
 }

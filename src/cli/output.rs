@@ -4,9 +4,14 @@ use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::{Isometry3, Matrix6};
 use std::time::Duration;
 
-/// Reads a JSON configuration file of type `T` (missing fields take their defaults), or the defaults when
-/// no file is given; errors name the file.
-pub fn read_config<T: serde::de::DeserializeOwned + Default>(
+/// Reads a JSON configuration file of type `T`, or the defaults when no file is given; errors name the
+/// file (and an unknown key names the key).
+///
+/// The file is a partial configuration merged over the serialised `T::default()` ([`merge_json`]): a
+/// nested object such as `{"register": {"voxel": 0.03}}` in a calibrate configuration changes that one
+/// field and keeps the command's own defaults for the rest of `register` (which serde's field defaults
+/// alone would replace by `RegisterConfig::default()`).
+pub fn read_config<T: serde::de::DeserializeOwned + serde::Serialize + Default>(
     path: Option<&std::path::Path>,
     what: &str,
 ) -> anyhow::Result<T> {
@@ -15,7 +20,45 @@ pub fn read_config<T: serde::de::DeserializeOwned + Default>(
         return Ok(T::default());
     };
     let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-    serde_json::from_str(&text).with_context(|| format!("{}: not a valid {what}", p.display()))
+    config_from_json(&text).with_context(|| format!("{}: not a valid {what}", p.display()))
+}
+
+/// `T` from a partial JSON configuration merged over the serialised `T::default()`.
+pub fn config_from_json<T: serde::de::DeserializeOwned + serde::Serialize + Default>(
+    text: &str,
+) -> anyhow::Result<T> {
+    let patch: serde_json::Value = serde_json::from_str(text)?;
+    if !patch.is_object() {
+        anyhow::bail!("expected a JSON object of configuration fields");
+    }
+    let mut merged = serde_json::to_value(T::default())?;
+    merge_json(&mut merged, patch);
+    Ok(serde_json::from_value(merged)?)
+}
+
+/// Deep merge: every key of `patch` replaces the one of `base`, except that objects present in both are
+/// merged key by key. A one-key object over a different one-key object (an enum changing variant, e.g.
+/// `{"fixed": 0.5}` over `{"auto": {...}}`) replaces it.
+pub fn merge_json(base: &mut serde_json::Value, patch: serde_json::Value) {
+    use serde_json::Value;
+    match (base, patch) {
+        (Value::Object(b), Value::Object(p)) => {
+            let other_variant = b.len() == 1 && p.len() == 1 && p.keys().ne(b.keys());
+            if other_variant {
+                *b = p;
+                return;
+            }
+            for (k, v) in p {
+                match b.get_mut(&k) {
+                    Some(slot) => merge_json(slot, v),
+                    None => {
+                        b.insert(k, v);
+                    }
+                }
+            }
+        }
+        (b, p) => *b = p,
+    }
 }
 
 /// An ambiguity (runner-up transform, score ratio, distance) as JSON; the translation under `key`, scaled by
@@ -80,4 +123,79 @@ pub fn matrix4_text(t: &Isometry3<f64>) -> String {
         })
         .collect::<Vec<_>>()
         .join("\n")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{config_from_json, merge_json};
+    use depthcal::calibration::robot_to_robot::CalibrateConfig;
+    use depthcal::registration::{RegisterConfig, Trim};
+
+    #[test]
+    fn partial_register_keeps_calibrate_defaults() {
+        let c: CalibrateConfig = config_from_json(r#"{"register": {"voxel": 0.03}}"#).unwrap();
+        let d = CalibrateConfig::default();
+        assert_eq!(c.register.voxel, Some(0.03));
+        assert!(c.register.sided);
+        assert_eq!(c.register.icp_levels, d.register.icp_levels);
+        assert_eq!(c.register.icp.factor, d.register.icp.factor);
+        assert_eq!(c.register.icp.max_iterations, d.register.icp.max_iterations);
+        assert!(!c.register.matching.mutual);
+        assert_eq!(c.register.ransac.verify_top, d.register.ransac.verify_top);
+        assert_eq!(c.fuse.depth_views, d.fuse.depth_views);
+    }
+
+    #[test]
+    fn enum_variants_and_nulls_replace() {
+        let c: RegisterConfig =
+            config_from_json(r#"{"icp": {"trim": {"fixed": 0.5}}, "verify": null}"#).unwrap();
+        assert_eq!(c.icp.trim, Trim::Fixed(0.5));
+        assert!(c.verify.is_none());
+        let c: RegisterConfig = config_from_json(r#"{"icp": {"trim": "none"}}"#).unwrap();
+        assert_eq!(c.icp.trim, Trim::None);
+        let c: RegisterConfig =
+            config_from_json(r#"{"icp": {"trim": {"auto": {"lambda": 3.0}}}}"#).unwrap();
+        assert_eq!(
+            c.icp.trim,
+            Trim::Auto {
+                min_overlap: 0.05,
+                lambda: 3.0
+            }
+        );
+        let mut v = serde_json::json!({"a": {"b": 1, "c": 2}});
+        merge_json(&mut v, serde_json::json!({"a": {"c": 3}, "d": 4}));
+        assert_eq!(v, serde_json::json!({"a": {"b": 1, "c": 3}, "d": 4}));
+    }
+
+    #[test]
+    fn an_empty_file_gives_the_defaults() {
+        fn same<T: serde::de::DeserializeOwned + serde::Serialize + Default>() {
+            let c: T = config_from_json("{}").unwrap();
+            assert_eq!(
+                serde_json::to_value(&c).unwrap(),
+                serde_json::to_value(T::default()).unwrap()
+            );
+        }
+        same::<RegisterConfig>();
+        same::<CalibrateConfig>();
+        same::<depthcal::calibration::handeye::HandEyeConfig>();
+        #[cfg(feature = "sim")]
+        same::<depthcal::sim::SimConfig>();
+        #[cfg(feature = "vision")]
+        {
+            same::<depthcal::vision::markers::MarkerConfig>();
+            same::<depthcal::vision::intrinsics::IntrinsicsConfig>();
+        }
+    }
+
+    #[test]
+    fn unknown_keys_are_named() {
+        let e = config_from_json::<RegisterConfig>(r#"{"voxle": 0.03}"#).unwrap_err();
+        assert!(format!("{e:#}").contains("voxle"), "{e:#}");
+        let e =
+            config_from_json::<CalibrateConfig>(r#"{"register": {"icp": {"kernal": "huber"}}}"#)
+                .unwrap_err();
+        assert!(format!("{e:#}").contains("kernal"), "{e:#}");
+        assert!(config_from_json::<RegisterConfig>("[1]").is_err());
+    }
 }

@@ -55,6 +55,7 @@ pub fn run(a: Args) -> Result<()> {
             anyhow::bail!("--voxel {v}: the voxel size must be a positive number (cloud units)");
         }
     }
+    cfg.validate()?;
     // Everything checkable before any work: the output (not an input, its directory, its extension).
     let mut inputs = Inputs::default();
     inputs.add("SOURCE", &a.source);

@@ -1,12 +1,8 @@
 //! `depthcal simulate`: write a simulated two-robot cell dataset with ground truth.
 
-use anyhow::{bail, Context};
 use clap::Args as ClapArgs;
-use depthcal::geometry::transform::isometry_to_nested;
-use depthcal::sim::{NoiseLevel, Resolution, SimCell, SimConfig};
-use indicatif::{ProgressBar, ProgressStyle};
+use depthcal::sim::{NoiseLevel, Resolution};
 use std::path::PathBuf;
-use std::time::Instant;
 
 /// Arguments of `depthcal simulate`.
 #[derive(ClapArgs)]
@@ -65,8 +61,24 @@ pub struct Args {
     pub json: bool,
 }
 
-/// Runs `depthcal simulate`.
+/// Runs `depthcal simulate`: without the `sim` feature, an error saying how to build it.
+#[cfg(not(feature = "sim"))]
 pub fn run(a: Args) -> anyhow::Result<()> {
+    anyhow::bail!(
+        "depthcal simulate {}: this depthcal was built without the simulator (cargo feature `sim`, on by \
+         default); rebuild with `cargo build --release --features sim`",
+        a.out_dir.display()
+    )
+}
+
+/// Runs `depthcal simulate`.
+#[cfg(feature = "sim")]
+pub fn run(a: Args) -> anyhow::Result<()> {
+    use anyhow::{bail, Context};
+    use depthcal::geometry::transform::isometry_to_nested;
+    use depthcal::sim::{SimCell, SimConfig};
+    use indicatif::{ProgressBar, ProgressStyle};
+    use std::time::Instant;
     let mut cfg: SimConfig = super::output::read_config(a.config.as_deref(), "SimConfig")?;
     if let Some(s) = a.seed {
         cfg.seed = s;

@@ -36,6 +36,7 @@ impl BoardArgs {
     }
 
     /// True when either flag is given.
+    #[cfg_attr(not(feature = "sim"), allow(dead_code))]
     pub fn given(&self) -> bool {
         self.board.is_some() || self.square.is_some()
     }

@@ -34,6 +34,15 @@ impl Default for FpfhConfig {
     }
 }
 
+impl FpfhConfig {
+    /// Checks the ranges; the error names the field (`fpfh.…`).
+    pub fn validate(&self) -> crate::Result<()> {
+        use crate::error::check;
+        check::positive("fpfh.radius", self.radius)?;
+        check::at_least("fpfh.max_neighbors", self.max_neighbors, 1)
+    }
+}
+
 /// The four pair features `(α as atan2, φ, θ, distance)` of PCL/Open3D for points `p1`, `p2` with unit
 /// normals `n1`, `n2`; all zero when the points coincide or the geometry is degenerate.
 #[inline]

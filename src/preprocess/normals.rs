@@ -25,6 +25,17 @@ impl Default for NormalConfig {
     }
 }
 
+impl NormalConfig {
+    /// Checks the ranges; the error names the field (`normals.…`).
+    pub fn validate(&self) -> crate::Result<()> {
+        use crate::error::check;
+        if let Some(r) = self.radius {
+            check::positive("normals.radius", r)?;
+        }
+        check::at_least("normals.max_neighbors", self.max_neighbors, 3)
+    }
+}
+
 /// Where normals should point.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
 pub enum Orientation {

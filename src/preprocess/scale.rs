@@ -28,6 +28,15 @@ impl Default for ScaleConfig {
     }
 }
 
+impl ScaleConfig {
+    /// Checks the ranges; the error names the field (`scale.…`).
+    pub fn validate(&self) -> Result<()> {
+        use crate::error::check;
+        check::at_least("scale.target_points", self.target_points, 1)?;
+        check::positive("scale.min_voxel_per_spacing", self.min_voxel_per_spacing)
+    }
+}
+
 /// Median distance from a point to its nearest neighbour (cloud units).
 ///
 /// For large clouds the kd-tree is built only over a spatially contiguous box of about 20 000 points

@@ -37,6 +37,16 @@ impl Default for MatchConfig {
     }
 }
 
+impl MatchConfig {
+    /// Checks the ranges; the error names the field (`matching.…`).
+    pub fn validate(&self) -> crate::Result<()> {
+        if let Some(r) = self.ratio {
+            crate::error::check::fraction("matching.ratio", r as f64)?;
+        }
+        Ok(())
+    }
+}
+
 /// Matches source descriptors to target descriptors (exact nearest neighbours in descriptor space).
 /// The order of the result is deterministic (by source index, then target index).
 pub fn match_features(src: &[Fpfh], tgt: &[Fpfh], cfg: &MatchConfig) -> Vec<Correspondence> {

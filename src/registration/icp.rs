@@ -17,7 +17,7 @@
 //! The increment, the information matrix and the covariance are all in the parameterisation
 //! `T ← exp([ω]×)·T + v`: rotation (radians) about the target frame's origin, then translation (cloud units).
 
-use crate::error::{Error, Result};
+use crate::error::{check, Error, Result};
 use crate::geometry::cloud::{to_v64, transform_point};
 use crate::geometry::transform::apply_left_increment;
 use crate::index::KdIndex;
@@ -103,7 +103,10 @@ pub struct IcpConfig {
     pub kernel_scale_sigmas: f64,
     /// Smallest kernel scale (cloud units; default 0: none).
     pub min_kernel_scale: f64,
-    /// Pairs farther apart than this are never used (cloud units). Must be set.
+    /// Pairs farther apart than this are never used (cloud units; default 0.05, 5 cm for clouds in
+    /// metres). The `register` pipeline overwrites it at each ICP level with
+    /// [`RegisterConfig::icp_distance_voxels`](crate::registration::RegisterConfig::icp_distance_voxels)
+    /// times that level's voxel.
     pub max_correspondence_distance: f64,
     /// Trimming (default FTrICP automatic overlap).
     pub trim: Trim,
@@ -111,7 +114,8 @@ pub struct IcpConfig {
     pub max_iterations: usize,
     /// Converged when the rotation step is below this (radians; default 1e-5).
     pub rotation_tolerance: f64,
-    /// Converged when the translation step is below this (cloud units). Must be set.
+    /// Converged when the translation step is below this (cloud units; default 1e-5, 10 µm for clouds in
+    /// metres). The `register` pipeline overwrites it at each ICP level with 1e-3 times that level's voxel.
     pub translation_tolerance: f64,
     /// Pairs whose normals differ by more than this are not used, degrees (sign-free; needs normals on
     /// both clouds, ignored otherwise). `None` (default) uses every pair. Rejects pairs between different
@@ -130,13 +134,47 @@ impl Default for IcpConfig {
             kernel: RobustKernel::Huber,
             kernel_scale_sigmas: 3.0,
             min_kernel_scale: 0.0,
-            max_correspondence_distance: 0.0,
+            max_correspondence_distance: 0.05,
             trim: Trim::default(),
             max_iterations: 40,
             rotation_tolerance: 1e-5,
-            translation_tolerance: 0.0,
+            translation_tolerance: 1e-5,
             max_normal_angle_deg: None,
             sided: false,
+        }
+    }
+}
+
+impl IcpConfig {
+    /// Checks the ranges; the error names the field (`icp.…`).
+    pub fn validate(&self) -> Result<()> {
+        self.validate_shape()?;
+        check::positive(
+            "icp.max_correspondence_distance",
+            self.max_correspondence_distance,
+        )?;
+        check::positive("icp.translation_tolerance", self.translation_tolerance)
+    }
+
+    /// Every check but the two fields the `register` pipeline sets per level.
+    pub(crate) fn validate_shape(&self) -> Result<()> {
+        check::positive("icp.kernel_scale_sigmas", self.kernel_scale_sigmas)?;
+        check::non_negative("icp.min_kernel_scale", self.min_kernel_scale)?;
+        check::at_least("icp.max_iterations", self.max_iterations, 1)?;
+        check::positive("icp.rotation_tolerance", self.rotation_tolerance)?;
+        if let Some(a) = self.max_normal_angle_deg {
+            check::angle_deg("icp.max_normal_angle_deg", a)?;
+        }
+        match self.trim {
+            Trim::None => Ok(()),
+            Trim::Fixed(xi) => check::fraction("icp.trim.fixed", xi),
+            Trim::Auto {
+                min_overlap,
+                lambda,
+            } => {
+                check::fraction("icp.trim.auto.min_overlap", min_overlap)?;
+                check::positive("icp.trim.auto.lambda", lambda)
+            }
         }
     }
 }

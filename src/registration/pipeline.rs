@@ -45,14 +45,18 @@ pub struct RegisterConfig {
     pub fpfh_max_neighbors: usize,
     /// Feature matching.
     pub matching: MatchConfig,
-    /// RANSAC (its `inlier_distance` is set from `ransac_distance_voxels`, its `seed` from `seed`).
+    /// RANSAC. The pipeline overwrites two of its fields: `inlier_distance` with `ransac_distance_voxels`
+    /// times the global voxel, `seed` with [`RegisterConfig::seed`]; values given for them here are ignored.
     pub ransac: RansacConfig,
     /// RANSAC inlier distance in voxels (default 1.5).
     pub ransac_distance_voxels: f64,
     /// Verification of RANSAC's best hypotheses by a short ICP and a normal-space-balanced alignment score
     /// ([`crate::registration::verify`]); `None` keeps RANSAC's own choice (most feature inliers).
     pub verify: Option<VerifyConfig>,
-    /// ICP (distances and tolerances are set per level from the voxel).
+    /// ICP. The pipeline overwrites two of its fields at every level: `max_correspondence_distance` with
+    /// `icp_distance_voxels` times the level's voxel, `translation_tolerance` with 1e-3 times the level's
+    /// voxel; values given for them here are ignored. `sided` is on when either it or
+    /// [`RegisterConfig::sided`] is.
     pub icp: IcpConfig,
     /// Number of ICP resolutions: voxel, voxel/2, voxel/4, ... (default 2).
     pub icp_levels: usize,
@@ -121,6 +125,43 @@ impl Default for RegisterConfig {
             trust: TrustConfig::default(),
             seed: 0,
         }
+    }
+}
+
+impl RegisterConfig {
+    /// Checks the ranges of every field (and of the nested configurations); the error names the field,
+    /// e.g. `icp.max_iterations`. The fields the pipeline overwrites (see [`RegisterConfig::ransac`] and
+    /// [`RegisterConfig::icp`]) are not checked. [`register`] calls it first.
+    pub fn validate(&self) -> Result<()> {
+        use crate::error::check;
+        if let Some(v) = self.voxel.filter(|v| !(*v > 0.0 && v.is_finite())) {
+            return Err(Error::config(
+                "voxel",
+                format!("must be a positive length, got {v}"),
+            ));
+        }
+        self.scale.validate()?;
+        check::positive("normal_radius_voxels", self.normal_radius_voxels)?;
+        check::at_least("normal_max_neighbors", self.normal_max_neighbors, 3)?;
+        check::positive("fpfh_radius_voxels", self.fpfh_radius_voxels)?;
+        check::at_least("fpfh_max_neighbors", self.fpfh_max_neighbors, 1)?;
+        self.matching.validate()?;
+        self.ransac.validate_shape()?;
+        check::positive("ransac_distance_voxels", self.ransac_distance_voxels)?;
+        if let Some(v) = &self.verify {
+            v.validate()?;
+        }
+        self.icp.validate_shape()?;
+        check::at_least("icp_levels", self.icp_levels, 1)?;
+        check::positive("icp_min_voxel_spacings", self.icp_min_voxel_spacings)?;
+        check::positive("icp_distance_voxels", self.icp_distance_voxels)?;
+        check::at_least("icp_max_source_points", self.icp_max_source_points, 1)?;
+        check::non_negative("degeneracy_threshold", self.degeneracy_threshold)?;
+        check::non_negative("systematic_voxel_fraction", self.systematic_voxel_fraction)?;
+        check::fraction("ambiguity_ratio", self.ambiguity_ratio)?;
+        check::non_negative("ambiguity_min_deg", self.ambiguity_min_deg)?;
+        check::non_negative("ambiguity_min_voxels", self.ambiguity_min_voxels)?;
+        self.trust.validate()
     }
 }
 
@@ -350,7 +391,7 @@ pub fn register_with_prior(
     }
     check_cloud(&src, "source")?;
     check_cloud(&tgt, "target")?;
-    cfg.trust.validate()?;
+    cfg.validate()?;
     if cfg.sided && (src.normals.is_none() || tgt.normals.is_none()) {
         return Err(Error::Config {
             field: "sided".into(),

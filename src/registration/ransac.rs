@@ -19,7 +19,7 @@
 //! Iteration `k` draws from its own random stream (`Rng::stream(seed, k)`) and batches are reduced in
 //! iteration order, so the result is bit-identical whatever the number of threads.
 
-use crate::error::{Error, Result};
+use crate::error::{check, Error, Result};
 use crate::geometry::cloud::{to_p64, transform_point};
 use crate::geometry::transform::pose_error;
 use crate::geometry::Rng;
@@ -69,8 +69,10 @@ impl PoseConstraint {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RansacConfig {
-    /// A correspondence is an inlier when `‖T·p − q‖` is below this (cloud units; the pipeline uses
-    /// 1.5 × voxel). Must be set.
+    /// A correspondence is an inlier when `‖T·p − q‖` is below this (cloud units; default 0.05, 5 cm for
+    /// clouds in metres). The `register` pipeline overwrites it with
+    /// [`RegisterConfig::ransac_distance_voxels`](crate::registration::RegisterConfig::ransac_distance_voxels)
+    /// times the global voxel.
     pub inlier_distance: f64,
     /// Edge-length similarity required of a sample's two triangles, in (0, 1] (default 0.9).
     pub edge_similarity: f64,
@@ -85,7 +87,8 @@ pub struct RansacConfig {
     pub guided: bool,
     /// How many distinct best hypotheses are verified on the full clouds (default 50).
     pub verify_top: usize,
-    /// Seed of the sampler.
+    /// Seed of the sampler (the `register` pipeline overwrites it with
+    /// [`RegisterConfig::seed`](crate::registration::RegisterConfig::seed)).
     pub seed: u64,
     /// Hypotheses that violate this are discarded before scoring (default: no constraint).
     pub constraint: PoseConstraint,
@@ -94,7 +97,7 @@ pub struct RansacConfig {
 impl Default for RansacConfig {
     fn default() -> Self {
         RansacConfig {
-            inlier_distance: 0.0,
+            inlier_distance: 0.05,
             edge_similarity: 0.9,
             max_iterations: 100_000,
             min_iterations: 20_000,
@@ -104,6 +107,39 @@ impl Default for RansacConfig {
             seed: 0,
             constraint: PoseConstraint::default(),
         }
+    }
+}
+
+impl RansacConfig {
+    /// Checks the ranges; the error names the field (`ransac.…`).
+    pub fn validate(&self) -> Result<()> {
+        self.validate_shape()?;
+        check::positive("ransac.inlier_distance", self.inlier_distance)
+    }
+
+    /// Every check but `inlier_distance`, which the `register` pipeline sets from the voxel.
+    pub(crate) fn validate_shape(&self) -> Result<()> {
+        check::fraction("ransac.edge_similarity", self.edge_similarity)?;
+        check::at_least("ransac.max_iterations", self.max_iterations, 1)?;
+        check::fraction("ransac.confidence", self.confidence)?;
+        check::at_least("ransac.verify_top", self.verify_top, 1)?;
+        if let Some(t) = self.constraint.max_tilt_deg {
+            if !(t.is_finite() && t >= 0.0) {
+                return Err(Error::config(
+                    "ransac.constraint.max_tilt_deg",
+                    format!("must be an angle ≥ 0 degrees, got {t}"),
+                ));
+            }
+        }
+        if let Some([lo, hi]) = self.constraint.translation_range {
+            if !(lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo <= hi) {
+                return Err(Error::config(
+                    "ransac.constraint.translation_range",
+                    format!("must be [min, max] with 0 ≤ min ≤ max, got [{lo}, {hi}]"),
+                ));
+            }
+        }
+        Ok(())
     }
 }
 

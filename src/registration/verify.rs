@@ -54,6 +54,18 @@ impl Default for VerifyConfig {
     }
 }
 
+impl VerifyConfig {
+    /// Checks the ranges; the error names the field (`verify.…`).
+    pub fn validate(&self) -> crate::Result<()> {
+        use crate::error::check;
+        check::at_least("verify.max_candidates", self.max_candidates, 1)?;
+        check::at_least("verify.sample_points", self.sample_points, 1)?;
+        check::positive("verify.icp_distance_voxels", self.icp_distance_voxels)?;
+        check::positive("verify.tight_distance_voxels", self.tight_distance_voxels)?;
+        check::angle_deg("verify.max_normal_angle_deg", self.max_normal_angle_deg)
+    }
+}
+
 /// A candidate after verification.
 #[derive(Clone, Debug)]
 pub struct Verified {

@@ -3,7 +3,7 @@
 //!
 //! Each marker is a black square of `size_m` (border included) whose inner `n × n` cells carry the code of
 //! one marker of a dictionary, on white paper of `margin_m` around. The codes are those of OpenCV's
-//! predefined dictionaries ([`super::marker_codes`], dumped from OpenCV; with the `vision` feature a test
+//! predefined dictionaries (`marker_codes`, dumped from OpenCV; with the `vision` feature a test
 //! checks them against the OpenCV the crate links). Like the checkerboard, a marker is a sheet of zero
 //! thickness: it changes the colour image, not the depth.
 //!

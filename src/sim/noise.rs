@@ -162,6 +162,7 @@ impl NoiseConfig {
 
     /// Probability that a return at incidence angle with cosine `cos_theta` is missing.
     #[inline]
+    #[cfg_attr(not(feature = "sim"), allow(dead_code))]
     pub(crate) fn grazing_drop_prob(&self, cos_theta: f64) -> f64 {
         if self.grazing_start_deg >= 90.0 || cos_theta >= self.grazing_start_deg.to_radians().cos()
         {

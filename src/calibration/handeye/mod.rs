@@ -248,6 +248,36 @@ impl Default for HandEyeConfig {
     }
 }
 
+impl HandEyeConfig {
+    /// Checks the ranges; the error names the field (`handeye.…`). [`calibrate_hand_eye`] calls it first.
+    pub fn validate(&self) -> Result<()> {
+        use crate::error::check;
+        check::at_least("handeye.max_pairs", self.max_pairs, 1)?;
+        check::positive("handeye.outlier_threshold", self.outlier_threshold)?;
+        if let Some(v) = self.max_rotation_residual_deg {
+            check::positive("handeye.max_rotation_residual_deg", v)?;
+        }
+        if let Some(v) = self.max_translation_residual_mm {
+            check::positive("handeye.max_translation_residual_mm", v)?;
+        }
+        check::positive("handeye.cauchy_width", self.cauchy_width)?;
+        for (field, v) in [
+            ("handeye.min_axis_spread_deg", self.min_axis_spread_deg),
+            ("handeye.warn_axis_spread_deg", self.warn_axis_spread_deg),
+            ("handeye.warn_rotation_deg", self.warn_rotation_deg),
+            ("handeye.warn_residual_deg", self.warn_residual_deg),
+            ("handeye.warn_residual_mm", self.warn_residual_mm),
+        ] {
+            check::non_negative(field, v)?;
+        }
+        check::positive(
+            "handeye.max_angle_mismatch_deg",
+            self.max_angle_mismatch_deg,
+        )?;
+        check::positive("handeye.max_translation_m", self.max_translation_m)
+    }
+}
+
 /// How well the motions excite the rotation axes.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Excitation {
@@ -708,16 +738,7 @@ pub fn calibrate_hand_eye(
     frames: &[HandEyeFrame],
     config: &HandEyeConfig,
 ) -> Result<HandEyeResult> {
-    if config.outlier_threshold.is_nan()
-        || config.outlier_threshold <= 0.0
-        || config.cauchy_width.is_nan()
-        || config.cauchy_width <= 0.0
-    {
-        return Err(Error::Config {
-            field: "handeye.outlier_threshold / cauchy_width".into(),
-            msg: "must be positive".into(),
-        });
-    }
+    config.validate()?;
     validate_frames(frames, config)?;
     let motions = motion_pairs(frames, config.max_pairs);
     let (excitation, mut warnings) = check_motions(&motions, config)?;
