@@ -575,7 +575,7 @@ fn bag_record(fields: &[(&str, Vec<u8>)], data: &[u8]) -> Vec<u8> {
 }
 
 /// A bag with a camera info and `frames` 4x3 depth images; `chunk_size` overrides the chunk's `size` field.
-fn small_bag(frames: u32, chunk_size: Option<u32>) -> Vec<u8> {
+fn small_bag(frames: u32, chunk_size: Option<u32>, compression: &str) -> Vec<u8> {
     let topics = [
         ("/cam/depth/camera_info", "sensor_msgs/CameraInfo"),
         ("/cam/depth/image_rect_raw", "sensor_msgs/Image"),
@@ -631,7 +631,7 @@ fn small_bag(frames: u32, chunk_size: Option<u32>) -> Vec<u8> {
     out.extend(bag_record(
         &[
             ("op", vec![5]),
-            ("compression", b"none".to_vec()),
+            ("compression", compression.as_bytes().to_vec()),
             (
                 "size",
                 le32(chunk_size.unwrap_or(inner.len() as u32)).to_vec(),
@@ -691,18 +691,43 @@ fn small_bag(frames: u32, chunk_size: Option<u32>) -> Vec<u8> {
 fn bag_with_lying_chunk_size_is_an_error() {
     let d = scratch("hostile-bag");
     let good = d.join("good.bag");
-    std::fs::write(&good, small_bag(2, None)).unwrap();
+    std::fs::write(&good, small_bag(2, None, "none")).unwrap();
     let b = BagRecording::open(&good, &BagImportConfig::default()).unwrap();
     assert_eq!(b.topics.len(), 2);
-    for size in [u32::MAX, 5] {
-        let e = error_of(
-            &d,
-            &format!("size{size}.bag"),
-            &small_bag(2, Some(size)),
-            |p| BagRecording::open(p, &BagImportConfig::default()).map(|_| ()),
+    // A chunk claiming 4 GB of decompressed data from a few hundred bytes, in every compression.
+    for comp in ["none", "lz4", "bz2"] {
+        let name = format!("size-{comp}.bag");
+        let e = error_of(&d, &name, &small_bag(2, Some(u32::MAX), comp), |p| {
+            BagRecording::open(p, &BagImportConfig::default()).map(|_| ())
+        });
+        has(
+            &e,
+            &[
+                "not a readable ROS1 bag: record 1 at byte 4109",
+                "chunk header field `size` says 4294967295 bytes",
+            ],
         );
-        has(&e, &["bag"]);
     }
+    let e = error_of(&d, "small.bag", &small_bag(2, Some(5), "none"), |p| {
+        BagRecording::open(p, &BagImportConfig::default()).map(|_| ())
+    });
+    has(&e, &["chunk header field `size` says 5 bytes"]);
+    // A record whose data length runs past the end of the file.
+    let mut b = small_bag(2, None, "none");
+    let hlen = u32::from_le_bytes(b[4109..4113].try_into().unwrap()) as usize;
+    let at = 4113 + hlen;
+    let len = b.len() as u32;
+    b[at..at + 4].copy_from_slice(&len.to_le_bytes());
+    let e = error_of(&d, "dlen.bag", &b, |p| {
+        BagRecording::open(p, &BagImportConfig::default()).map(|_| ())
+    });
+    has(
+        &e,
+        &[
+            "record 1 at byte 4109: data length",
+            "runs past the end of the file",
+        ],
+    );
 }
 
 // ---------------------------------------------------------------------------------------------------------
@@ -732,13 +757,21 @@ fn matrix_reader_refuses_garbage_without_panicking() {
 fn pose_csv_and_manifest_refuse_garbage_with_line_or_field() {
     use depthcal::geometry::pose::parse_poses;
     let p = Path::new("r/poses.csv");
-    let e = parse_poses("frame,x_mm,y_mm,z_mm,a_deg,b_deg,c_deg\n001,1,2,3,nan,0,0\n", None, p)
-        .unwrap_err()
-        .to_string();
+    let e = parse_poses(
+        "frame,x_mm,y_mm,z_mm,a_deg,b_deg,c_deg\n001,1,2,3,nan,0,0\n",
+        None,
+        p,
+    )
+    .unwrap_err()
+    .to_string();
     has(&e, &["r/poses.csv", "line 2"]);
-    let e = parse_poses("frame,x_mm,y_mm,z_mm,a_deg,b_deg,c_deg\n001,1,2,3,0,0\n", None, p)
-        .unwrap_err()
-        .to_string();
+    let e = parse_poses(
+        "frame,x_mm,y_mm,z_mm,a_deg,b_deg,c_deg\n001,1,2,3,0,0\n",
+        None,
+        p,
+    )
+    .unwrap_err()
+    .to_string();
     has(&e, &["r/poses.csv", "line 2", "columns"]);
     let m = Path::new("c/cell.toml");
     let e = depthcal::cell::CellManifest::from_toml_str("format = 3\n[[robot]]\n", m)
@@ -879,7 +912,7 @@ fn write_fuzz_seeds() {
         "t.json",
         br#"{"transform": [[1,0,0,1],[0,1,0,2],[0,0,1,3],[0,0,0,1]], "fitness": 1}"#,
     );
-    write_seed(&root, "rosbag", "small.bag", &small_bag(2, None));
+    write_seed(&root, "rosbag", "small.bag", &small_bag(2, None, "none"));
     write_seed(
         &root,
         "rosbag",
