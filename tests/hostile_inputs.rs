@@ -548,6 +548,44 @@ fn ros_messages_with_lying_sizes_are_errors() {
         &e,
         &["step 4294967295 is less than width 4294967295 x 4 bytes"],
     );
+    // Found by fuzzing: an unknown encoding passed decode and to_depth reserved width x height first.
+    let msg = image(60000, 60000, 0, "yuv422", &[]);
+    let img = RosImage::decode(&msg).unwrap();
+    has(
+        &img.to_depth(0.001).unwrap_err(),
+        &["encoding \"yuv422\" is not a depth encoding"],
+    );
+    has(&img.to_rgb().unwrap_err(), &["is not a colour encoding"]);
+    let crash = std::fs::read(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data/hostile/rosbag-image-unknown-encoding.bin"),
+    )
+    .unwrap();
+    if let Ok(img) = RosImage::decode(&crash) {
+        assert!(img.to_depth(0.001).is_err());
+    }
+    // A message built by hand with a lying layout is checked too.
+    let forged = RosImage {
+        encoding: "16UC1",
+        width: 60000,
+        height: 60000,
+        step: 120000,
+        data: &[0; 16],
+        ..img
+    };
+    has(
+        &forged.to_depth(0.001).unwrap_err(),
+        &["data has 16 bytes, fewer than step 120000 x height 60000"],
+    );
+    let forged = RosImage {
+        encoding: "rgb8",
+        step: 1,
+        ..forged
+    };
+    has(
+        &forged.to_rgb().unwrap_err(),
+        &["step 1 is less than width 60000 x 3 bytes of rgb8"],
+    );
     let mut short = image(2, 2, 4, "16UC1", &[0; 8]);
     short.truncate(short.len() - 3);
     let e = RosImage::decode(&short).unwrap_err();

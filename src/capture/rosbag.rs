@@ -163,20 +163,28 @@ impl<'a> RosImage<'a> {
             data,
         };
         if let Some(bpp) = bytes_per_pixel(encoding) {
-            let row = width as u64 * bpp as u64;
-            if (step as u64) < row {
-                return Err(format!(
-                    "step {step} is less than width {width} x {bpp} bytes of {encoding}"
-                ));
-            }
-            if (data.len() as u64) < step as u64 * height as u64 {
-                return Err(format!(
-                    "data has {} bytes, fewer than step {step} x height {height}",
-                    data.len()
-                ));
-            }
+            img.check_layout(bpp)?;
         }
         Ok(img)
+    }
+
+    /// Checks that `step` holds a row of `bpp`-byte pixels and `data` holds `height` rows, so that nothing
+    /// sized from the header is allocated or indexed beyond the message.
+    fn check_layout(&self, bpp: usize) -> std::result::Result<(), String> {
+        let (width, height, step, encoding) = (self.width, self.height, self.step, self.encoding);
+        let row = width as u64 * bpp as u64;
+        if (step as u64) < row {
+            return Err(format!(
+                "step {step} is less than width {width} x {bpp} bytes of {encoding}"
+            ));
+        }
+        if (self.data.len() as u64) < step as u64 * height as u64 {
+            return Err(format!(
+                "data has {} bytes, fewer than step {step} x height {height}",
+                self.data.len()
+            ));
+        }
+        Ok(())
     }
 
     fn row(&self, v: u32, bpp: usize) -> &'a [u8] {
@@ -192,6 +200,16 @@ impl<'a> RosImage<'a> {
         if w == 0 || h == 0 {
             return Err(format!("the image is empty ({w}x{h})"));
         }
+        let bpp = match self.encoding {
+            "16UC1" | "mono16" => 2,
+            "32FC1" => 4,
+            other => {
+                return Err(format!(
+                    "encoding {other:?} is not a depth encoding (expected 16UC1, mono16 or 32FC1)"
+                ))
+            }
+        };
+        self.check_layout(bpp)?;
         let mut data = Vec::with_capacity(w as usize * h as usize);
         let mut clipped = 0;
         match self.encoding {
@@ -262,6 +280,7 @@ impl<'a> RosImage<'a> {
                 self.width, self.height
             ));
         }
+        self.check_layout(bpp)?;
         let mut data = Vec::with_capacity(self.width as usize * self.height as usize * 3);
         for v in 0..self.height {
             for p in self.row(v, bpp).chunks_exact(bpp) {
