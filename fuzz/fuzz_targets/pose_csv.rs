@@ -9,7 +9,12 @@ fuzz_target!(|data: &[u8]| {
         return;
     };
     let path = Path::new("fuzz/poses.csv");
-    for f in [None, Some(PoseFormat::Kuka), Some(PoseFormat::Matrix), Some(PoseFormat::Xyzquat)] {
+    for f in [
+        None,
+        Some(PoseFormat::Kuka),
+        Some(PoseFormat::Matrix),
+        Some(PoseFormat::Xyzquat),
+    ] {
         match parse_poses(text, f, path) {
             Ok((_, rows)) => {
                 for r in rows {

@@ -23,8 +23,7 @@ fuzz_target!(|data: &[u8]| {
     let mut src: Vec<[f32; 3]> = (0..n)
         .map(|i| {
             let v = |k: usize| {
-                i16::from_le_bytes([byte(6 * i + 2 * k), byte(6 * i + 2 * k + 1)]) as f32
-                    / 32768.0
+                i16::from_le_bytes([byte(6 * i + 2 * k), byte(6 * i + 2 * k + 1)]) as f32 / 32768.0
                     * scale
             };
             [v(0), v(1), v(2)]

@@ -26,7 +26,11 @@ fuzz_target!(|data: &[u8]| {
         match BagRecording::open(&path, &cfg) {
             Ok(mut bag) => {
                 let n = bag.info().depth.frames.len() as u64;
-                let nc = bag.info().color.as_ref().map_or(0, |c| c.frames.len() as u64);
+                let nc = bag
+                    .info()
+                    .color
+                    .as_ref()
+                    .map_or(0, |c| c.frames.len() as u64);
                 let d: Vec<u64> = (0..n.min(4)).collect();
                 let c: Vec<u64> = (0..nc.min(4)).collect();
                 let _ = bag.read_frames(&d, &c);
