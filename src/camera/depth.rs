@@ -60,11 +60,15 @@ fn describe(color: png::ColorType, depth: png::BitDepth) -> String {
     format!("{bits}-bit {kind}")
 }
 
-type PngReader = png::Reader<BufReader<std::fs::File>>;
+/// The most a deflate stream expands (about 1032:1), with room for the zlib and PNG framing.
+const DEFLATE_MAX_RATIO: u64 = 1100;
 
-fn open_depth_png(path: &Path) -> Result<(PngReader, u32, u32)> {
-    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    let mut decoder = png::Decoder::new(BufReader::new(file));
+fn open_depth_png<R: std::io::BufRead + std::io::Seek>(
+    path: &Path,
+    input: R,
+    file_len: u64,
+) -> Result<(png::Reader<R>, u32, u32)> {
+    let mut decoder = png::Decoder::new(input);
     decoder.set_transformations(png::Transformations::IDENTITY);
     let reader = decoder
         .read_info()
@@ -81,21 +85,57 @@ fn open_depth_png(path: &Path) -> Result<(PngReader, u32, u32)> {
             ),
         ));
     }
+    super::intrinsics::check_image_size(w, h)
+        .map_err(|m| Error::format(path, format!("PNG header (IHDR width, height): {m}")))?;
+    let raw = h as u64 * (1 + 2 * w as u64);
+    if raw > file_len.saturating_mul(DEFLATE_MAX_RATIO) {
+        return Err(Error::format(
+            path,
+            format!(
+                "PNG header (IHDR width, height) says {w}x{h} pixels ({raw} bytes), which {file_len} bytes of \
+                 compressed data cannot hold: the file is truncated or corrupt"
+            ),
+        ));
+    }
     Ok((reader, w, h))
 }
 
-/// Reads only the header of a depth PNG and checks it is 16-bit greyscale; returns `(width, height)`.
+fn open_depth_png_file(path: &Path) -> Result<(png::Reader<BufReader<std::fs::File>>, u32, u32)> {
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+    open_depth_png(path, BufReader::new(file), len)
+}
+
+/// Reads only the header of a depth PNG and checks it is 16-bit greyscale of a sane size (see
+/// [`crate::camera::intrinsics::check_image_size`]); returns `(width, height)`.
 pub fn read_depth_png_header(path: impl AsRef<Path>) -> Result<(u32, u32)> {
-    let (_, w, h) = open_depth_png(path.as_ref())?;
+    let (_, w, h) = open_depth_png_file(path.as_ref())?;
     Ok((w, h))
 }
 
 /// Reads a 16-bit single-channel (greyscale) PNG depth image.
 ///
-/// Any other PNG kind (8-bit, colour, alpha, palette) is an error naming the file and what was found.
+/// Any other PNG kind (8-bit, colour, alpha, palette), a size beyond the limits or one the file's length
+/// cannot hold is an error naming the file and what was found.
 pub fn read_depth_png(path: impl AsRef<Path>) -> Result<DepthImage> {
     let path = path.as_ref();
-    let (mut reader, w, h) = open_depth_png(path)?;
+    let (reader, w, h) = open_depth_png_file(path)?;
+    decode_depth_png(path, reader, w, h)
+}
+
+/// Parses the bytes of a depth PNG (as [`read_depth_png`]); `name` names it in errors.
+pub fn parse_depth_png(bytes: &[u8], name: impl AsRef<Path>) -> Result<DepthImage> {
+    let path = name.as_ref();
+    let (reader, w, h) = open_depth_png(path, std::io::Cursor::new(bytes), bytes.len() as u64)?;
+    decode_depth_png(path, reader, w, h)
+}
+
+fn decode_depth_png<R: std::io::BufRead + std::io::Seek>(
+    path: &Path,
+    mut reader: png::Reader<R>,
+    w: u32,
+    h: u32,
+) -> Result<DepthImage> {
     let size = reader
         .output_buffer_size()
         .ok_or_else(|| Error::format(path, "PNG image is too large"))?;
@@ -104,6 +144,15 @@ pub fn read_depth_png(path: impl AsRef<Path>) -> Result<DepthImage> {
         .next_frame(&mut buf)
         .map_err(|e| Error::format(path, format!("corrupt PNG data: {e}")))?;
     let row = out.line_size;
+    if row < 2 * w as usize || buf.len() < row * h as usize {
+        return Err(Error::format(
+            path,
+            format!(
+                "PNG frame of {} bytes per row does not hold {w}x{h} 16-bit pixels",
+                row
+            ),
+        ));
+    }
     let mut data = Vec::with_capacity(w as usize * h as usize);
     for r in 0..h as usize {
         let line = &buf[r * row..r * row + 2 * w as usize];

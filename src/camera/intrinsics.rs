@@ -8,6 +8,26 @@ use std::path::Path;
 /// Default depth scale: 1 mm per depth unit (RealSense D400 default, Kinect, Redwood, 7-Scenes).
 pub const DEFAULT_DEPTH_SCALE: f64 = 0.001;
 
+/// The largest image side depthcal accepts, pixels (depth cameras are at most a few thousand pixels wide).
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+/// The largest image area depthcal accepts, pixels (64 Mpx: a 512 MB ray table, a 128 MB depth image).
+pub const MAX_IMAGE_PIXELS: u64 = 1 << 26;
+
+/// Checks an image size from a header or intrinsics against [`MAX_IMAGE_SIDE`] and [`MAX_IMAGE_PIXELS`], so
+/// that a hostile size is an error before anything of that size is allocated.
+pub fn check_image_size(width: u32, height: u32) -> std::result::Result<(), String> {
+    if width > MAX_IMAGE_SIDE
+        || height > MAX_IMAGE_SIDE
+        || width as u64 * height as u64 > MAX_IMAGE_PIXELS
+    {
+        return Err(format!(
+            "{width}x{height} pixels is larger than depthcal accepts (at most {MAX_IMAGE_SIDE} per side and \
+             {MAX_IMAGE_PIXELS} pixels)"
+        ));
+    }
+    Ok(())
+}
+
 fn default_depth_scale() -> f64 {
     DEFAULT_DEPTH_SCALE
 }
@@ -103,6 +123,8 @@ impl Intrinsics {
                 self.width, self.height
             ));
         }
+        check_image_size(self.width, self.height)
+            .map_err(|m| format!("fields `width` and `height`: {m}"))?;
         Ok(())
     }
 

@@ -11,8 +11,11 @@ pub mod intrinsics;
 pub mod view;
 
 pub use depth::{
-    deproject, read_depth_png, write_depth_png, DeprojectConfig, DepthImage, RayTable,
+    deproject, parse_depth_png, read_depth_png, write_depth_png, DeprojectConfig, DepthImage,
+    RayTable,
 };
 pub use distortion::DistortionModel;
-pub use intrinsics::{Intrinsics, DEFAULT_DEPTH_SCALE};
+pub use intrinsics::{
+    check_image_size, Intrinsics, DEFAULT_DEPTH_SCALE, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE,
+};
 pub use view::{DepthView, Seen};

@@ -163,20 +163,28 @@ impl<'a> RosImage<'a> {
             data,
         };
         if let Some(bpp) = bytes_per_pixel(encoding) {
-            let row = width as u64 * bpp as u64;
-            if (step as u64) < row {
-                return Err(format!(
-                    "step {step} is less than width {width} x {bpp} bytes of {encoding}"
-                ));
-            }
-            if (data.len() as u64) < step as u64 * height as u64 {
-                return Err(format!(
-                    "data has {} bytes, fewer than step {step} x height {height}",
-                    data.len()
-                ));
-            }
+            img.check_layout(bpp)?;
         }
         Ok(img)
+    }
+
+    /// Checks that `step` holds a row of `bpp`-byte pixels and `data` holds `height` rows, so that nothing
+    /// sized from the header is allocated or indexed beyond the message.
+    fn check_layout(&self, bpp: usize) -> std::result::Result<(), String> {
+        let (width, height, step, encoding) = (self.width, self.height, self.step, self.encoding);
+        let row = width as u64 * bpp as u64;
+        if (step as u64) < row {
+            return Err(format!(
+                "step {step} is less than width {width} x {bpp} bytes of {encoding}"
+            ));
+        }
+        if (self.data.len() as u64) < step as u64 * height as u64 {
+            return Err(format!(
+                "data has {} bytes, fewer than step {step} x height {height}",
+                self.data.len()
+            ));
+        }
+        Ok(())
     }
 
     fn row(&self, v: u32, bpp: usize) -> &'a [u8] {
@@ -192,6 +200,16 @@ impl<'a> RosImage<'a> {
         if w == 0 || h == 0 {
             return Err(format!("the image is empty ({w}x{h})"));
         }
+        let bpp = match self.encoding {
+            "16UC1" | "mono16" => 2,
+            "32FC1" => 4,
+            other => {
+                return Err(format!(
+                    "encoding {other:?} is not a depth encoding (expected 16UC1, mono16 or 32FC1)"
+                ))
+            }
+        };
+        self.check_layout(bpp)?;
         let mut data = Vec::with_capacity(w as usize * h as usize);
         let mut clipped = 0;
         match self.encoding {
@@ -262,6 +280,7 @@ impl<'a> RosImage<'a> {
                 self.width, self.height
             ));
         }
+        self.check_layout(bpp)?;
         let mut data = Vec::with_capacity(self.width as usize * self.height as usize * 3);
         for v in 0..self.height {
             for p in self.row(v, bpp).chunks_exact(bpp) {
@@ -475,6 +494,91 @@ fn check_bag_header(path: &Path, data: &[u8], file_len: u64) -> Result<()> {
     }
 }
 
+/// The largest decompressed chunk accepted (real recordings write chunks of a few MB).
+const MAX_CHUNK_BYTES: u64 = 1 << 30;
+
+/// Walks the bag's records (headers only, seeking over the data) and checks every length against the file
+/// and every chunk's claimed decompressed `size` against its compressed data, before the `rosbag` crate
+/// allocates that size.
+fn check_bag_records(path: &Path, file: std::fs::File, file_len: u64) -> Result<()> {
+    use std::io::{Read, Seek};
+    let mut r = std::io::BufReader::new(file);
+    let mut pos = 13u64; // after "#ROSBAG V2.0\n"
+    r.seek(std::io::SeekFrom::Start(pos))
+        .map_err(|e| Error::io(path, e))?;
+    let read_u32 = |r: &mut std::io::BufReader<std::fs::File>| -> Option<u32> {
+        let mut b = [0u8; 4];
+        r.read_exact(&mut b).ok().map(|_| u32::from_le_bytes(b))
+    };
+    let mut k = 0usize;
+    while pos < file_len {
+        let at = |what: String| {
+            Error::format(
+                path,
+                format!("not a readable ROS1 bag: record {k} at byte {pos}: {what}"),
+            )
+        };
+        let hlen =
+            read_u32(&mut r).ok_or_else(|| at("truncated record header length".into()))? as u64;
+        if hlen > file_len - pos - 4 {
+            return Err(at(format!(
+                "header length {hlen} runs past the end of the file ({file_len} bytes)"
+            )));
+        }
+        let mut header = vec![0u8; hlen as usize];
+        r.read_exact(&mut header)
+            .map_err(|e| at(format!("header: {e}")))?;
+        let dlen =
+            read_u32(&mut r).ok_or_else(|| at("truncated record data length".into()))? as u64;
+        let data_at = pos + 8 + hlen;
+        if data_at > file_len || dlen > file_len - data_at {
+            return Err(at(format!(
+                "data length {dlen} runs past the end of the file ({file_len} bytes)"
+            )));
+        }
+        let mut fields = Msg::new(&header);
+        let (mut op, mut compression, mut size) = (None, None, None);
+        while fields.pos < header.len() {
+            let Ok(f) = fields.bytes("header field") else {
+                break; // the rosbag crate reports malformed fields
+            };
+            if let Some(v) = f.strip_prefix(b"op=") {
+                op = v.first().copied();
+            } else if let Some(v) = f.strip_prefix(b"compression=") {
+                compression = Some(v.to_vec());
+            } else if let Some(v) = f.strip_prefix(b"size=") {
+                size = <[u8; 4]>::try_from(v).ok().map(u32::from_le_bytes);
+            }
+        }
+        if op == Some(0x05) {
+            if let Some(size) = size.map(u64::from) {
+                let comp =
+                    String::from_utf8_lossy(compression.as_deref().unwrap_or(b"?")).to_string();
+                if comp == "none" && size != dlen {
+                    return Err(at(format!(
+                        "chunk header field `size` says {size} bytes, but the uncompressed chunk has {dlen}"
+                    )));
+                }
+                let max = match comp.as_str() {
+                    "lz4" => dlen.saturating_mul(256).saturating_add(1 << 16),
+                    _ => MAX_CHUNK_BYTES,
+                }
+                .min(MAX_CHUNK_BYTES);
+                if size > max {
+                    return Err(at(format!(
+                        "chunk header field `size` says {size} bytes, which {dlen} bytes of {comp} data cannot hold"
+                    )));
+                }
+            }
+        }
+        r.seek_relative(dlen as i64)
+            .map_err(|e| at(format!("data: {e}")))?;
+        pos = data_at + dlen;
+        k += 1;
+    }
+    Ok(())
+}
+
 /// Calls `f(topic, type, bag_time_ns, data)` for every message of the bag, in file order.
 fn for_each_message(
     path: &Path,
@@ -560,6 +664,8 @@ impl BagRecording {
                 .map_err(|e| Error::io(&path, e))?
                 .len();
             check_bag_header(&path, &head, len)?;
+            let file = std::fs::File::open(&path).map_err(|e| Error::io(&path, e))?;
+            check_bag_records(&path, file, len)?;
         }
         let bag = RosBag::new(&path).map_err(|e| bag_error(&path, e))?;
         let mut conns: HashMap<u32, (String, String)> = HashMap::new();

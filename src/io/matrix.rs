@@ -13,7 +13,13 @@ use std::path::Path;
 pub fn read_matrix_file(path: impl AsRef<Path>) -> Result<Isometry3<f64>> {
     let path = path.as_ref();
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    let values = parse_matrix_text(&text).map_err(|msg| Error::format(path, msg))?;
+    parse_matrix(&text, path)
+}
+
+/// Parses the text of a transform file (see the module docs); `path` names it in errors.
+pub fn parse_matrix(text: &str, path: impl AsRef<Path>) -> Result<Isometry3<f64>> {
+    let path = path.as_ref();
+    let values = parse_matrix_text(text).map_err(|msg| Error::format(path, msg))?;
     isometry_from_rows(&values, &path.display().to_string())
 }
 
@@ -38,6 +44,12 @@ fn parse_matrix_text(text: &str) -> std::result::Result<[f64; 16], String> {
                     tok.parse::<f64>()
                         .map_err(|_| format!("line {}: `{tok}` is not a number", lineno + 1))?,
                 );
+                if out.len() > 16 {
+                    return Err(format!(
+                        "line {}: more than 16 numbers (expected a 4x4 row-major matrix)",
+                        lineno + 1
+                    ));
+                }
             }
         }
         out

@@ -12,7 +12,7 @@ mod ply;
 mod xyz;
 
 pub use atomic::write_atomically;
-pub use matrix::{read_matrix_file, write_matrix_file};
+pub use matrix::{parse_matrix, read_matrix_file, write_matrix_file};
 
 use crate::error::{Error, Result};
 use crate::geometry::PointCloud;
@@ -33,14 +33,21 @@ fn extension(path: &Path) -> String {
 pub fn read_cloud(path: impl AsRef<Path>) -> Result<PointCloud> {
     let path = path.as_ref();
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    parse_cloud(&bytes, path)
+}
+
+/// Parses the bytes of a point-cloud file; `name` chooses the format by its extension (as [`read_cloud`]) and
+/// names the file in errors. Never panics: any input is a cloud or an error.
+pub fn parse_cloud(bytes: &[u8], name: impl AsRef<Path>) -> Result<PointCloud> {
+    let path = name.as_ref();
     if bytes.is_empty() {
         return Err(Error::format(path, "the file is empty"));
     }
     match extension(path).as_str() {
-        "ply" => ply::read(path, &bytes),
-        "pcd" => pcd::read(path, &bytes),
-        "xyz" | "txt" | "pts" => xyz::read(path, &bytes),
-        "npy" => npy::read(path, &bytes),
+        "ply" => ply::read(path, bytes),
+        "pcd" => pcd::read(path, bytes),
+        "xyz" | "txt" | "pts" => xyz::read(path, bytes),
+        "npy" => npy::read(path, bytes),
         _ => Err(Error::UnknownFormat {
             path: path.to_path_buf(),
             expected: READ_FORMATS,

@@ -1,5 +1,5 @@
-//! NumPy `.npy` (format 1.x/2.x): a C-order N×3 (or N×k, k ≥ 3, first three columns used) array of
-//! little-endian float32 or float64.
+//! NumPy `.npy` (format 1.x/2.x): a C-order N×3 array of little-endian float32 or float64 (one point per row;
+//! a transposed 3×N array is refused with a hint).
 
 use crate::error::{Error, Result};
 use crate::geometry::PointCloud;
@@ -10,7 +10,7 @@ pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
     if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
         return Err(err("not a .npy file (bad magic)"));
     }
-    let (hlen, hstart) = match bytes[6] {
+    let (hlen, hstart): (usize, usize) = match bytes[6] {
         1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
         2 | 3 if bytes.len() >= 12 => (
             u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize,
@@ -19,7 +19,7 @@ pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
         _ => return Err(err("unsupported .npy version")),
     };
     let header = bytes
-        .get(hstart..hstart + hlen)
+        .get(hstart..hstart.saturating_add(hlen))
         .ok_or_else(|| err("header truncated"))?;
     let header = std::str::from_utf8(header).map_err(|_| err("header is not text"))?;
     let field = |key: &str| -> Option<&str> {
@@ -52,14 +52,25 @@ pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
         .collect::<std::result::Result<_, _>>()
         .map_err(|_| err("bad shape"))?;
     let (n, k) = match dims.as_slice() {
-        [n, k] if *k >= 3 => (*n, *k),
-        _ => return Err(err(&format!("shape {dims:?}: expected (N, 3)"))),
+        [n, 3] => (*n, 3),
+        [3, m] => {
+            return Err(err(&format!(
+                "shape (3, {m}): expected (N, 3), one point per row; this looks like a transposed array \
+                 (save `a.T` or use `np.ascontiguousarray(a.T)`)"
+            )))
+        }
+        _ => {
+            return Err(err(&format!(
+                "shape {dims:?}: expected (N, 3), one x y z point per row"
+            )))
+        }
     };
     let data = &bytes[hstart + hlen..];
-    if data.len() < n * k * size {
+    let need = n.checked_mul(k).and_then(|v| v.checked_mul(size));
+    if need.is_none_or(|b| data.len() < b) {
         return Err(err(&format!(
             "data truncated: shape ({n}, {k}) needs {} bytes, found {}",
-            n * k * size,
+            need.map_or("more than 2^64".to_string(), |b| b.to_string()),
             data.len()
         )));
     }

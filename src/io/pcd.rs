@@ -39,9 +39,12 @@ fn rgb_from_bits(bits: u32) -> [u8; 3] {
     [(bits >> 16) as u8, (bits >> 8) as u8, bits as u8]
 }
 
+/// The most an LZF stream can expand: a 3-byte back-reference yields at most 264 bytes.
+const LZF_MAX_RATIO: usize = 88;
+
 /// Decompresses LZF (as used by PCL's binary_compressed).
 fn lzf_decompress(input: &[u8], out_len: usize) -> std::result::Result<Vec<u8>, String> {
-    let mut out = Vec::with_capacity(out_len);
+    let mut out = Vec::with_capacity(out_len.min(input.len().saturating_mul(LZF_MAX_RATIO)));
     let mut i = 0;
     while i < input.len() {
         let ctrl = input[i] as usize;
@@ -171,7 +174,7 @@ pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
             counts.len()
         )));
     }
-    let mut offset = 0;
+    let mut offset = 0usize;
     for (k, f) in fields.iter_mut().enumerate() {
         f.size = *sizes.get(k).unwrap_or(&4);
         f.kind = *types.get(k).unwrap_or(&b'F');
@@ -185,13 +188,41 @@ pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
                 f.name, f.kind as char, f.size
             )));
         }
+        if f.count == 0 {
+            return Err(err(format!(
+                "field `{}` has COUNT 0; every field needs COUNT of at least 1",
+                f.name
+            )));
+        }
+        if matches!(f.name.as_str(), "rgb" | "rgba") && f.size != 4 {
+            return Err(err(format!(
+                "field `{}` has SIZE {}; a packed rgb/rgba field must have SIZE 4",
+                f.name, f.size
+            )));
+        }
         f.offset = offset;
-        offset += f.bytes();
+        offset = f
+            .size
+            .checked_mul(f.count)
+            .and_then(|b| offset.checked_add(b))
+            .ok_or_else(|| {
+                err(format!(
+                    "field `{}`: SIZE {} x COUNT {} overflows the record size",
+                    f.name, f.size, f.count
+                ))
+            })?;
     }
     let record = offset;
-    let n = npoints
-        .or_else(|| Some(width? * height.unwrap_or(1)))
-        .ok_or_else(|| err("header has neither POINTS nor WIDTH".into()))?;
+    let n = match (npoints, width) {
+        (Some(n), _) => n,
+        (None, Some(w)) => w.checked_mul(height.unwrap_or(1)).ok_or_else(|| {
+            err(format!(
+                "WIDTH {w} x HEIGHT {} overflows the point count",
+                height.unwrap_or(1)
+            ))
+        })?,
+        (None, None) => return Err(err("header has neither POINTS nor WIDTH".into())),
+    };
     let find = |names: &[&str]| fields.iter().position(|f| names.contains(&f.name.as_str()));
     let ix = [find(&["x"]), find(&["y"]), find(&["z"])];
     let [Some(fx), Some(fy), Some(fz)] = ix else {
@@ -204,12 +235,34 @@ pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
     ];
     let has_normals = fnorm.iter().all(|f| f.is_some());
     let frgb = find(&["rgb", "rgba"]);
+    let data_len = bytes.len() - pos;
+    // Values per point in the file (a field of COUNT k has k of them); each needs at least one character and a
+    // separator in ASCII, and every size below is checked against the data's length before anything is
+    // allocated, so a header claiming more points than the file can hold is an error, not an allocation.
+    let per_point = fields
+        .iter()
+        .try_fold(0usize, |a, f| a.checked_add(f.count))
+        .ok_or_else(|| err("the COUNTs overflow".into()))?;
+    let too_many = |need: Option<usize>, what: &str| {
+        err(format!(
+            "header says {n} points ({}), but the file has only {data_len} bytes of data",
+            match need {
+                Some(b) => format!("at least {b} bytes of {what}"),
+                None => format!("more bytes of {what} than can be counted"),
+            }
+        ))
+    };
 
-    // Fill a row-major table of values: rows = points, columns = fields (first element of each).
-    let mut values = vec![0f64; n * nf];
-    let mut rgb_bits = vec![0u32; if frgb.is_some() { n } else { 0 }];
+    // A row-major table of values: rows = points, columns = fields (first element of each).
+    let mut values: Vec<f64>;
+    let mut rgb_bits: Vec<u32> = Vec::new();
     match data_kind.as_str() {
         "ascii" => {
+            let need = n.checked_mul(per_point).and_then(|v| v.checked_mul(2));
+            if need.is_none_or(|b| b > data_len + 1) {
+                return Err(too_many(need.map(|b| b.saturating_sub(1)), "ASCII data"));
+            }
+            values = Vec::with_capacity(n * nf);
             let text = std::str::from_utf8(&bytes[pos..])
                 .map_err(|_| err("ASCII data is not text".into()))?;
             let mut row = 0;
@@ -245,13 +298,13 @@ pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
                             ))
                         })?
                     };
-                    values[row * nf + j] = v;
+                    values.push(v);
                     if Some(j) == frgb {
-                        rgb_bits[row] = if f.kind == b'F' {
+                        rgb_bits.push(if f.kind == b'F' {
                             (v as f32).to_bits()
                         } else {
                             v as u32
-                        };
+                        });
                     }
                     t += f.count;
                 }
@@ -262,30 +315,43 @@ pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
             }
         }
         "binary" | "binary_compressed" => {
+            let need = n.checked_mul(record);
             let data: std::borrow::Cow<[u8]> = if data_kind == "binary" {
-                let need = n * record;
-                if bytes.len() - pos < need {
-                    return Err(err(format!(
-                        "binary data is truncated: header says {n} points ({need} bytes), file has {} bytes",
-                        bytes.len() - pos
-                    )));
-                }
+                let need = match need {
+                    Some(b) if b <= data_len => b,
+                    _ => {
+                        return Err(err(format!(
+                            "binary data is truncated: header says {n} points ({} bytes), file has {data_len} bytes",
+                            need.map_or("too many".to_string(), |b| b.to_string())
+                        )))
+                    }
+                };
                 std::borrow::Cow::Borrowed(&bytes[pos..pos + need])
             } else {
-                if bytes.len() < pos + 8 {
+                if data_len < 8 {
                     return Err(err("binary_compressed data is truncated".into()));
                 }
                 let csize = u32::from_le_bytes(bytes[pos..pos + 4].try_into().unwrap()) as usize;
                 let usize_ =
                     u32::from_le_bytes(bytes[pos + 4..pos + 8].try_into().unwrap()) as usize;
-                if usize_ != n * record {
+                if need != Some(usize_) {
                     return Err(err(format!(
                         "binary_compressed: uncompressed size {usize_} does not match {n} points of {record} bytes"
                     )));
                 }
-                let src = bytes
-                    .get(pos + 8..pos + 8 + csize)
-                    .ok_or_else(|| err("binary_compressed data is truncated".into()))?;
+                if csize > data_len - 8 {
+                    return Err(err(format!(
+                        "binary_compressed data is truncated: the compressed size says {csize} bytes, the file has {} after it",
+                        data_len - 8
+                    )));
+                }
+                if usize_ > csize.saturating_mul(LZF_MAX_RATIO) {
+                    return Err(err(format!(
+                        "binary_compressed: uncompressed size {usize_} is impossible from {csize} bytes of LZF data \
+                         (at most {LZF_MAX_RATIO} times larger)"
+                    )));
+                }
+                let src = &bytes[pos + 8..pos + 8 + csize];
                 let soa = lzf_decompress(src, usize_)
                     .map_err(|m| err(format!("binary_compressed: {m}")))?;
                 // Convert the field-major layout into point-major records.
@@ -301,6 +367,11 @@ pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
                 }
                 std::borrow::Cow::Owned(aos)
             };
+            // n * record <= data length and record >= nf, so this fits.
+            values = vec![0f64; n * nf];
+            if frgb.is_some() {
+                rgb_bits = vec![0u32; n];
+            }
             for i in 0..n {
                 let rec = &data[i * record..(i + 1) * record];
                 for (j, f) in fields.iter().enumerate() {

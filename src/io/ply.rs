@@ -105,25 +105,114 @@ fn has_all(def: &ElementDef, names: &[&[&str]]) -> bool {
         .all(|alts| alts.iter().any(|n| def.properties.contains_key(*n)))
 }
 
+fn scalar_size(t: &ScalarType) -> usize {
+    match t {
+        ScalarType::Char | ScalarType::UChar => 1,
+        ScalarType::Short | ScalarType::UShort => 2,
+        ScalarType::Int | ScalarType::UInt | ScalarType::Float => 4,
+        ScalarType::Double => 8,
+    }
+}
+
+/// The fewest bytes one binary entry of `def` can take (scalars, and the count of each list).
+fn min_entry_bytes(def: &ElementDef) -> usize {
+    def.properties
+        .values()
+        .map(|p| match &p.data_type {
+            PropertyType::Scalar(t) => scalar_size(t),
+            PropertyType::List(c, _) => scalar_size(c),
+        })
+        .sum()
+}
+
+fn colour_names() -> [&'static [&'static str]; 3] {
+    [
+        &["red", "r", "diffuse_red"],
+        &["green", "g", "diffuse_green"],
+        &["blue", "b", "diffuse_blue"],
+    ]
+}
+
+fn cloud_from(def: &ElementDef, elems: &[Vertex]) -> PointCloud {
+    let has_normals = has_all(
+        def,
+        &[
+            &["nx", "normal_x"],
+            &["ny", "normal_y"],
+            &["nz", "normal_z"],
+        ],
+    );
+    let has_colors = has_all(def, &colour_names());
+    PointCloud {
+        points: elems.iter().map(|v| v.p).collect(),
+        normals: has_normals.then(|| elems.iter().map(|v| v.n).collect()),
+        colors: has_colors.then(|| elems.iter().map(|v| v.c).collect()),
+    }
+}
+
 /// Reads a PLY file's `vertex` element.
+///
+/// A header whose vertex count disagrees with the data (fewer vertices in the data, or data left after the
+/// last vertex when `vertex` is the last element) is an error in every encoding. ASCII `nan`/`inf` values
+/// are read as such (the caller drops non-finite points with a warning).
 pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
     let parser = Parser::<Vertex>::new();
     let mut reader = Reader::new(std::io::Cursor::new(bytes));
     let header = parser
         .read_header(&mut reader)
         .map_err(|e| Error::format(path, format!("bad PLY header: {e}")))?;
-    let mut cloud = None;
-    for (name, def) in &header.elements {
-        if let Some(PropertyDef { name: pname, .. }) = def
-            .properties
-            .values()
-            .find(|p| matches!(p.data_type, PropertyType::List(..)) && name == "vertex")
-        {
+    let body = reader.get_ref().position() as usize;
+    let Some(vdef) = header.elements.get("vertex") else {
+        return Err(Error::format(path, "the PLY file has no `vertex` element"));
+    };
+    if let Some(PropertyDef { name: pname, .. }) = vdef
+        .properties
+        .values()
+        .find(|p| matches!(p.data_type, PropertyType::List(..)))
+    {
+        return Err(Error::format(
+            path,
+            format!("vertex property `{pname}` is a list; expected scalars"),
+        ));
+    }
+    for axis in ["x", "y", "z"] {
+        if !vdef.properties.contains_key(axis) {
             return Err(Error::format(
                 path,
-                format!("vertex property `{pname}` is a list; expected scalars"),
+                format!("the vertex element has no `{axis}` property"),
             ));
         }
+    }
+    let is_last = header.elements.keys().last().map(|k| k.as_str()) == Some("vertex");
+    if header.encoding == Encoding::Ascii {
+        return read_ascii(path, bytes, body, &header.elements, is_last);
+    }
+    // Every count of the header is checked against the data's length before the payload is read.
+    let avail = bytes.len().saturating_sub(body);
+    let mut need = 0usize;
+    for (name, def) in &header.elements {
+        let min = min_entry_bytes(def);
+        need = def
+            .count
+            .checked_mul(min)
+            .and_then(|b| need.checked_add(b))
+            .filter(|&b| b <= avail)
+            .ok_or_else(|| {
+                Error::format(
+                    path,
+                    format!(
+                        "element `{name}`: the header says {} entries of at least {min} bytes, more than the {avail} \
+                         bytes of data after the header (truncated file, or a header that overstates the count)",
+                        def.count
+                    ),
+                )
+            })?;
+        if name == "vertex" {
+            break;
+        }
+    }
+    let mut cloud = None;
+    for (name, def) in &header.elements {
         let elems = parser
             .read_payload_for_element(&mut reader, def, &header)
             .map_err(|e| {
@@ -136,52 +225,105 @@ pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
                 )
             })?;
         if name == "vertex" {
-            for axis in ["x", "y", "z"] {
-                if !def.properties.contains_key(axis) {
-                    return Err(Error::format(
-                        path,
-                        format!("the vertex element has no `{axis}` property"),
-                    ));
-                }
-            }
-            let has_normals = has_all(
-                def,
-                &[
-                    &["nx", "normal_x"],
-                    &["ny", "normal_y"],
-                    &["nz", "normal_z"],
-                ],
-            );
-            let has_colors = has_all(
-                def,
-                &[
-                    &["red", "r", "diffuse_red"],
-                    &["green", "g", "diffuse_green"],
-                    &["blue", "b", "diffuse_blue"],
-                ],
-            );
-            cloud = Some(PointCloud {
-                points: elems.iter().map(|v| v.p).collect(),
-                normals: has_normals.then(|| elems.iter().map(|v| v.n).collect()),
-                colors: has_colors.then(|| elems.iter().map(|v| v.c).collect()),
-            });
+            cloud = Some(cloud_from(def, &elems));
             // Remaining elements (faces, ...) are not needed.
             break;
         }
     }
     let cloud = cloud.ok_or_else(|| Error::format(path, "the PLY file has no `vertex` element"))?;
-    if header.encoding != Encoding::Ascii {
-        let consumed = reader.get_ref().position() as usize;
-        let is_last = header.elements.keys().last().map(|k| k.as_str()) == Some("vertex");
-        if is_last && consumed < bytes.len() {
-            log::warn!(
-                "{}: {} bytes after the last vertex are ignored (does the header's vertex count match the data?)",
-                path.display(),
-                bytes.len() - consumed
-            );
-        }
+    let consumed = reader.get_ref().position() as usize;
+    if is_last && consumed < bytes.len() {
+        return Err(Error::format(
+            path,
+            format!(
+                "{} bytes of data follow the last of the header's {} vertices: the header's vertex count does not \
+                 match the data",
+                bytes.len() - consumed,
+                cloud.len()
+            ),
+        ));
     }
     Ok(cloud)
+}
+
+/// The ASCII payload, read here rather than by `ply-rs` so that `nan`/`inf` are numbers and errors name the
+/// line. Each element entry is one line; blank lines are skipped.
+fn read_ascii(
+    path: &Path,
+    bytes: &[u8],
+    body: usize,
+    elements: &ply_rs_bw::ply::KeyMap<ElementDef>,
+    vertex_is_last: bool,
+) -> Result<PointCloud> {
+    let err = |msg: String| Error::format(path, msg);
+    let text = std::str::from_utf8(&bytes[body.min(bytes.len())..])
+        .map_err(|_| err("the ASCII data is not text".into()))?;
+    let first_line = 1 + bytes[..body.min(bytes.len())]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count();
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| (i + first_line, l.trim()))
+        .filter(|(_, l)| !l.is_empty());
+    for (name, def) in elements {
+        if name != "vertex" {
+            for i in 0..def.count {
+                if lines.next().is_none() {
+                    return Err(err(format!(
+                        "element `{name}`: the header says {} entries, the data ends after {i}",
+                        def.count
+                    )));
+                }
+            }
+            continue;
+        }
+        // At most one vertex per two bytes of text: never reserve more than the file can hold.
+        let mut elems = Vec::with_capacity(def.count.min(text.len() / 2 + 1));
+        for i in 0..def.count {
+            let Some((lineno, line)) = lines.next() else {
+                return Err(err(format!(
+                    "the header says {} vertices, the data ends after {i}",
+                    def.count
+                )));
+            };
+            let mut toks = line.split_whitespace();
+            let mut v = Vertex::default();
+            for (pname, p) in &def.properties {
+                let tok = toks.next().ok_or_else(|| {
+                    err(format!(
+                        "line {lineno}: vertex {i}: property `{pname}` is missing"
+                    ))
+                })?;
+                let x: f64 = tok.parse().map_err(|_| {
+                    err(format!(
+                        "line {lineno}: vertex {i}: property `{pname}` value `{tok}` is not a number"
+                    ))
+                })?;
+                match &p.data_type {
+                    PropertyType::Scalar(ScalarType::Float | ScalarType::Double) => {
+                        v.set_f(pname, x as f32);
+                    }
+                    _ => {
+                        v.set_int(pname, x);
+                    }
+                }
+            }
+            elems.push(v);
+        }
+        if vertex_is_last {
+            if let Some((lineno, _)) = lines.next() {
+                return Err(err(format!(
+                    "line {lineno}: data continues after the header's {} vertices: the header's vertex count does \
+                     not match the data",
+                    def.count
+                )));
+            }
+        }
+        return Ok(cloud_from(def, &elems));
+    }
+    Err(err("the PLY file has no `vertex` element".into()))
 }
 
 /// Writes binary little-endian PLY.

@@ -1,5 +1,6 @@
 //! Plain text clouds: one point per line, `x y z` separated by whitespace or commas; further columns are
-//! ignored; blank lines and lines starting with `#` or `//` are skipped, and so is a first line that is a header.
+//! ignored; blank lines and lines starting with `#` or `//` are skipped, and so is a first line
+//! that is a header (names only, no number); any other line that is not x y z numbers is an error naming it.
 
 use crate::error::{Error, Result};
 use crate::geometry::PointCloud;
@@ -9,38 +10,48 @@ use std::path::Path;
 pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
     let text = std::str::from_utf8(bytes).map_err(|_| Error::format(path, "not a text file"))?;
     let mut points = Vec::new();
+    let mut first = true;
     for (k, line) in text.lines().enumerate() {
         let line = line.trim();
         if line.is_empty() || line.starts_with('#') || line.starts_with("//") {
             continue;
         }
-        let mut toks = line
+        let toks: Vec<&str> = line
             .split(|c: char| c.is_whitespace() || c == ',' || c == ';')
-            .filter(|s| !s.is_empty());
+            .filter(|s| !s.is_empty())
+            .collect();
+        let is_first = std::mem::replace(&mut first, false);
         let mut p = [0f32; 3];
-        let mut ok = true;
+        let mut bad = None;
         for (axis, v) in p.iter_mut().enumerate() {
-            match toks.next().map(|t| t.parse::<f32>()) {
+            match toks.get(axis).map(|t| t.parse::<f32>()) {
                 Some(Ok(x)) => *v = x,
                 Some(Err(_)) | None => {
-                    ok = false;
-                    if !(points.is_empty() && k == 0) {
-                        return Err(Error::format(
-                            path,
-                            format!(
-                                "line {}: expected x y z numbers, coordinate {} is missing or not a number",
-                                k + 1,
-                                ["x", "y", "z"][axis]
-                            ),
-                        ));
-                    }
+                    bad = Some(axis);
                     break;
                 }
             }
         }
-        if ok {
+        let Some(axis) = bad else {
             points.push(p);
+            continue;
+        };
+        // Only a first line made of names alone (`x y z`, `X,Y,Z,intensity`) is a header.
+        if is_first && toks.iter().all(|t| t.parse::<f64>().is_err()) {
+            continue;
         }
+        let what = match toks.get(axis) {
+            Some(t) => format!("`{t}` is not a number"),
+            None => "is missing".to_string(),
+        };
+        return Err(Error::format(
+            path,
+            format!(
+                "line {}: expected x y z numbers, coordinate {} {what}",
+                k + 1,
+                ["x", "y", "z"][axis]
+            ),
+        ));
     }
     if points.is_empty() {
         return Err(Error::format(path, "no points found"));
