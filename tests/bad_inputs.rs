@@ -26,12 +26,16 @@ fn table() -> Vec<Row> {
         if !line.starts_with("| B") || cells.len() != 5 {
             continue;
         }
-        let unquote = |s: &str| s.trim_matches('`').replace("\\|", "|");
+        let unquote = |s: &str| s.trim_matches('`').trim().replace("\\|", "|");
         rows.push(Row {
             id: cells[0].trim_start_matches("| ").to_string(),
             command: unquote(cells[2]),
             message: unquote(cells[3]),
-            exit: cells[4].trim_end_matches(" |").trim().parse().expect("exit status"),
+            exit: cells[4]
+                .trim_end_matches(" |")
+                .trim()
+                .parse()
+                .expect("exit status"),
         });
     }
     rows
@@ -114,11 +118,7 @@ const KUKA_HEADER: &str = "frame,x_mm,y_mm,z_mm,a_deg,b_deg,c_deg\n";
 /// relative to the directory, which is the working directory of the command).
 fn run_row(id: &str, setup: impl Fn(&Path) -> Vec<String>) {
     let rows = table();
-    let row = rows
-        .iter()
-        .find(|r| r.id == id)
-        .unwrap_or_else(|| panic!("{id} has no row in docs/bad-inputs.md"))
-        .clone();
+    let row = rows.iter().find(|r| r.id == id).cloned();
     let dir = scratch(&format!("bad-{id}"));
     let args = setup(&dir);
     let command = format!("depthcal {}", args.join(" "));
@@ -135,6 +135,7 @@ fn run_row(id: &str, setup: impl Fn(&Path) -> Vec<String>) {
         println!("{id} | `{command}` | exit {code}\n  stderr: {stderr}");
     }
     assert!(!stderr.contains("panicked"), "{id}: panic: {stderr}");
+    let row = row.unwrap_or_else(|| panic!("{id} has no row in docs/bad-inputs.md"));
     assert_eq!(row.command, command, "{id}: the table's command");
     assert_eq!(code, row.exit, "{id}: exit status; stderr: {stderr}");
     let all = format!("{stderr}{stdout}");
@@ -216,7 +217,7 @@ rows! {
     B29 => |d: &Path| { cell_with(d, |t| t.replacen("pose_format = \"kuka\"", "pose_format = \"kuka\"\nhandeye_sigma_mm = 0.2", 1)); s(&["calibrate", "cell"]) };
     B30 => |d: &Path| { cell_with(d, |t| t.replacen("\"left/poses.csv\"", "\"../../../../etc/passwd\"", 1)); s(&["calibrate", "cell"]) };
     B31 => |d: &Path| { cell_with(d, |t| t.replacen("\"left/poses.csv\"", "\"/etc/hostname\"", 1)); s(&["calibrate", "cell"]) };
-    B32 => |d: &Path| { cell_with(d, |t| t); std::fs::remove_file(d.join("cell/right/depth/0003.png")).unwrap(); s(&["calibrate", "cell"]) };
+    B32 => |d: &Path| { cell_with(d, |t| t); std::fs::remove_file(d.join("cell/right/depth/003.png")).unwrap(); s(&["calibrate", "cell"]) };
     B33 => |d: &Path| { cell_with(d, |t| t); edit_json(&d.join("cell/left/intrinsics.json"), |v| { v["width"] = 60000.into(); v["height"] = 60000.into(); }); s(&["calibrate", "cell"]) };
     B34 => |d: &Path| { cell_with(d, |t| t); edit_json(&d.join("cell/left/intrinsics.json"), |v| { v["fx"] = (-500.0).into(); }); s(&["calibrate", "cell"]) };
     B35 => |d: &Path| { cell_with(d, |t| t); edit_json(&d.join("cell/left/intrinsics.json"), |v| { v["width"] = 320.into(); }); s(&["calibrate", "cell"]) };

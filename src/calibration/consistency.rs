@@ -1161,7 +1161,7 @@ mod tests {
         assert!(c.median_residual_m > 0.0008, "{}", c.median_residual_m);
         assert!(c.frames.iter().all(|f| !f.consistent));
         assert_eq!(c.findings.len(), 2, "{:?}", c.findings);
-        assert!(c.findings[0].contains("robot left's frames disagree"));
+        assert!(c.findings[0].contains("its frames disagree"));
         assert!(
             c.findings[1].contains("focal length fy of robot left"),
             "{}",
