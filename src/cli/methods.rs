@@ -65,6 +65,11 @@ impl CalibrateSettings {
         cfg.use_priors = !self.no_priors;
         Ok(cfg)
     }
+
+    /// The `--config` file, if any.
+    pub fn config_path(&self) -> Option<&PathBuf> {
+        self.config.as_ref()
+    }
 }
 
 /// What a method needs beyond the cell itself.
