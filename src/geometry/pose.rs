@@ -103,9 +103,33 @@ pub fn isometry_to_xyzquat(t: &Isometry3<f64>) -> [f64; 7] {
 
 /// `[x, y, z, rx, ry, rz]` of an isometry: the Universal Robots pose vector (metres, rotation vector in
 /// radians, angle in `[0, π]`).
+///
+/// Near a half turn the axis and its opposite give the same rotation; the axis is then chosen with its
+/// first non-zero component positive, so that the written vector reads back to itself.
 pub fn isometry_to_ur(t: &Isometry3<f64>) -> [f64; 6] {
+    let q = t.rotation.quaternion();
+    let (mut w, mut axis) = (q.w, q.imag());
+    if w < 0.0 {
+        w = -w;
+        axis = -axis;
+    }
+    let n = axis.norm();
+    let r = if n == 0.0 {
+        Vector3::zeros()
+    } else {
+        if w < 1e-9 {
+            let first = axis
+                .iter()
+                .copied()
+                .find(|c| c.abs() > 1e-12)
+                .unwrap_or(1.0);
+            if first < 0.0 {
+                axis = -axis;
+            }
+        }
+        axis * (2.0 * n.atan2(w) / n)
+    };
     let v = t.translation.vector;
-    let r = t.rotation.scaled_axis();
     [v.x, v.y, v.z, r.x, r.y, r.z]
 }
 
@@ -321,7 +345,8 @@ impl PoseFormat {
     }
 
     /// The numeric columns of an isometry in this format, formatted for a CSV row (fixed decimals:
-    /// KUKA 6 decimals of mm and degrees; every other format 9 decimals).
+    /// KUKA 6 decimals of mm and degrees; ABB 6 of mm and 12 of the quaternion; every other format 9
+    /// decimals).
     pub fn format_values(self, t: &Isometry3<f64>) -> String {
         let vals: Vec<f64> = match self {
             PoseFormat::Kuka => {
@@ -334,9 +359,15 @@ impl PoseFormat {
             PoseFormat::Abb => isometry_to_abb(t).to_vec(),
             PoseFormat::Fanuc => isometry_to_fanuc(t).to_vec(),
         };
-        let prec = if self == PoseFormat::Kuka { 6 } else { 9 };
         vals.iter()
-            .map(|v| {
+            .enumerate()
+            .map(|(i, v)| {
+                let prec = match self {
+                    PoseFormat::Kuka => 6,
+                    PoseFormat::Abb if i < 3 => 6,
+                    PoseFormat::Abb => 12,
+                    _ => 9,
+                };
                 let s = format!("{v:.prec$}");
                 // Avoid "-0.000000".
                 if s.trim_start_matches('-')
