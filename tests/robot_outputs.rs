@@ -150,6 +150,7 @@ fn new_pose_formats_round_trip() {
         write_poses(&p, &recs, f).unwrap();
         let (g, _) = read_poses(&p, Some(f.name().parse().unwrap())).unwrap();
         assert_eq!(g, f);
+        let _ = std::fs::remove_dir_all(&d);
     }
     assert_eq!(
         PoseFormat::Ur.header(),
@@ -291,6 +292,7 @@ fn a_cell_reads_ur_abb_and_fanuc_pose_files() {
     .unwrap();
     let cell = Cell::open(&cell_dir).unwrap();
     assert_eq!(cell.frame_id("left"), "left_base");
+    let _ = std::fs::remove_dir_all(&d);
 }
 
 fn copy_dir(from: &Path, to: &Path) {
@@ -331,6 +333,7 @@ fn frame_ids_come_from_cell_toml_and_are_checked() {
     assert!(Frames::new("a", "a").is_err());
     assert!(Frames::new("a b", "c").is_err());
     assert!(Frames::new("world", "robot2/base_link").is_ok());
+    let _ = std::fs::remove_dir_all(&d);
 }
 
 /// Tag names of `xml` opened and closed in order; panics when they do not nest.
@@ -599,4 +602,33 @@ fn calibrate_output_writes_every_file() {
     let (code, _, err) = depthcal(&["calibrate", DEMO, "--output", outs, "--frame-id", "a b"]);
     assert_eq!(code, 1);
     assert!(err.contains("frame"), "{err}");
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+#[test]
+fn convert_writes_and_reads_ur_abb_and_fanuc() {
+    let d = scratch("convert-formats");
+    let src = format!("{DEMO}/left/poses.csv");
+    let (_, original) = read_poses(&src, None).unwrap();
+    let mut prev = src.clone();
+    for to in ["ur", "abb", "fanuc", "kuka"] {
+        let out = d.join(format!("{to}.csv"));
+        let (code, _, err) = depthcal(&["convert", &prev, "--to", to, "-o", out.to_str().unwrap()]);
+        assert_eq!(code, 0, "{err}");
+        let text = std::fs::read_to_string(&out).unwrap();
+        let f: PoseFormat = to.parse().unwrap();
+        assert_eq!(text.lines().next().unwrap(), f.header());
+        let (g, recs) = read_poses(&out, None).unwrap();
+        assert_eq!(g, f);
+        for (a, b) in original.iter().zip(&recs) {
+            assert_eq!(a.frame, b.frame);
+            assert!(max_diff(&rot(&a.pose), &rot(&b.pose)) < 1e-8);
+            assert!((a.pose.translation.vector - b.pose.translation.vector).norm() < 1e-8);
+        }
+        prev = out.to_str().unwrap().to_string();
+    }
+    let (code, _, err) = depthcal(&["convert", &src, "--to", "staubli"]);
+    assert_eq!(code, 2);
+    assert!(err.contains("ur, abb or fanuc"), "{err}");
+    let _ = std::fs::remove_dir_all(&d);
 }
