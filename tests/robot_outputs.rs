@@ -632,3 +632,28 @@ fn convert_writes_and_reads_ur_abb_and_fanuc() {
     assert!(err.contains("ur, abb or fanuc"), "{err}");
     let _ = std::fs::remove_dir_all(&d);
 }
+
+#[test]
+fn an_untrusted_calibration_writes_no_output() {
+    let d = scratch("untrusted-output");
+    let cell_dir = d.join("cell");
+    copy_dir(Path::new(DEMO), &cell_dir);
+    let p = cell_dir.join("right/intrinsics.json");
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+    v["fy"] = (v["fy"].as_f64().unwrap() * 10.0).into();
+    std::fs::write(&p, v.to_string()).unwrap();
+    let out = d.join("out");
+    let (code, _, err) = depthcal(&[
+        "calibrate",
+        cell_dir.to_str().unwrap(),
+        "--output",
+        out.to_str().unwrap(),
+        "--threads",
+        "2",
+    ]);
+    assert_eq!(code, 3, "{err}");
+    assert!(err.contains("not written"), "{err}");
+    assert!(!out.exists(), "an untrusted result must not be written");
+    let _ = std::fs::remove_dir_all(&d);
+}

@@ -159,8 +159,17 @@ fn frames(a: &Args, cell: &Cell) -> Result<Frames> {
         .child_frame_id
         .clone()
         .unwrap_or_else(|| cell.frame_id(&o.name));
-    Frames::new(&parent, &child)
-        .with_context(|| "the frame ids of the ROS outputs (--frame-id, --child-frame-id)")
+    match Frames::new(&parent, &child) {
+        Ok(f) => Ok(f),
+        // Only printed (the ROS command lines): a robot name that makes no valid frame id is kept as it
+        // was before frame ids were checked.
+        Err(_) if a.output.is_none() && a.frame_id.is_none() && a.child_frame_id.is_none() => {
+            Ok(Frames { parent, child })
+        }
+        Err(e) => Err(anyhow::Error::new(e).context(
+            "the frame ids of the ROS outputs (--frame-id, --child-frame-id, or `frame` in cell.toml)",
+        )),
+    }
 }
 
 /// Writes `--output DIR` (a trusted result): the clouds, the JSON and the transform files, each atomically.
