@@ -322,6 +322,17 @@ pub fn calibrate(
     cfg: &CalibrateConfig,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Calibration> {
+    calibrate_keeping_clouds(cell, initializer, cfg, progress).map(|(c, _)| c)
+}
+
+/// [`calibrate`], also returning the fused clouds it registered (each in its own robot's base frame), e.g.
+/// to write them out.
+pub fn calibrate_keeping_clouds(
+    cell: &Cell,
+    initializer: &dyn Initializer,
+    cfg: &CalibrateConfig,
+    progress: &mut dyn FnMut(&str),
+) -> Result<(Calibration, FusedCell)> {
     cfg.validate()?;
     let (reference, other) = robot_pair(cell)?;
     progress(&format!(
@@ -334,7 +345,7 @@ pub fn calibrate(
     let fused = fuse_cell(cell, cfg)?;
     let mut c = refine_cell(cell, &fused, initializer, cfg, true, progress)?;
     c.timings_ms.insert(0, ("fuse".into(), fused.fuse_ms));
-    Ok(c)
+    Ok((c, fused))
 }
 
 /// The initialiser's estimate alone, without fusing or refining (`calibrate --no-refine`): for initialisers
@@ -345,6 +356,16 @@ pub fn initialize_only(
     cfg: &CalibrateConfig,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Calibration> {
+    initialize_only_keeping_clouds(cell, initializer, cfg, progress).map(|(c, _)| c)
+}
+
+/// [`initialize_only`], also returning the fused clouds (empty when the initialiser does not need them).
+pub fn initialize_only_keeping_clouds(
+    cell: &Cell,
+    initializer: &dyn Initializer,
+    cfg: &CalibrateConfig,
+    progress: &mut dyn FnMut(&str),
+) -> Result<(Calibration, FusedCell)> {
     cfg.validate()?;
     let fused = if initializer.needs_clouds() {
         progress("fusing both robots' frames");
@@ -356,7 +377,7 @@ pub fn initialize_only(
     if initializer.needs_clouds() {
         c.timings_ms.insert(0, ("fuse".into(), fused.fuse_ms));
     }
-    Ok(c)
+    Ok((c, fused))
 }
 
 /// Runs `initializer` on the fused cell (the timings exclude the fusion) and, when `refine` is set, refines its estimate with trimmed robust

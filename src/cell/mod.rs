@@ -8,7 +8,7 @@
 //! [[robot]]
 //! name = "left"
 //! poses = "left/poses.csv"        # one row per frame: T_base_ee
-//! pose_format = "kuka"            # kuka (default) | matrix | xyzquat
+//! pose_format = "kuka"            # kuka (default) | matrix | xyzquat | ur | abb | fanuc
 //! intrinsics = "left/intrinsics.json"
 //! hand_eye = [1,0,0,0, 0,1,0,0, 0,0,1,0.1, 0,0,0,1]   # T_ee_cam, row-major, metres (or a JSON path)
 //! depth = "left/depth/{frame}.png"
@@ -156,6 +156,10 @@ pub struct RobotEntry {
     /// 1-σ of the depth camera's scale error, as a fraction (optional; 0.001 = 0.1%).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub depth_scale_sigma: Option<f64>,
+    /// The ROS / TF frame id of the robot's base (optional; default `{name}_base`), used by the
+    /// robot and ROS outputs of `calibrate`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame: Option<String>,
     /// Keys this schema version does not know: an error when the manifest is read (kept so that the error
     /// can name them).
     #[serde(flatten)]
@@ -176,6 +180,7 @@ pub const ROBOT_KEYS: &[&str] = &[
     "pose_repeatability_mm",
     "pose_repeatability_deg",
     "depth_scale_sigma",
+    "frame",
 ];
 
 /// The top-level keys and tables of `cell.toml`.
@@ -297,6 +302,7 @@ impl RobotEntry {
             pose_repeatability_mm: None,
             pose_repeatability_deg: None,
             depth_scale_sigma: None,
+            frame: None,
             extra: toml::Table::new(),
         }
     }
@@ -755,6 +761,11 @@ impl Cell {
 
     fn open_robot(dir: &Path, e: &RobotEntry, allow_outside: bool) -> Result<CellRobot> {
         let manifest = dir.join(MANIFEST_FILE);
+        if let Some(f) = &e.frame {
+            check_frame_id(f).map_err(|m| {
+                Error::format(&manifest, format!("robot {:?}: field `frame`: {m}", e.name))
+            })?;
+        }
         let at = |field: &str| format!("robot {:?}: field `{field}`", e.name);
         let resolve = |field: &str, rel: &str| {
             resolve_cell_path(dir, &manifest, &at(field), rel, allow_outside)
@@ -881,6 +892,16 @@ impl Cell {
         })
     }
 
+    /// The ROS / TF frame id of robot `name`'s base: the robot entry's `frame`, else `{name}_base`.
+    pub fn frame_id(&self, name: &str) -> String {
+        self.manifest
+            .robots
+            .iter()
+            .find(|r| r.name == name)
+            .and_then(|r| r.frame.clone())
+            .unwrap_or_else(|| format!("{name}_base"))
+    }
+
     /// The reference robot.
     pub fn reference(&self) -> &CellRobot {
         self.robots
@@ -893,6 +914,27 @@ impl Cell {
     pub fn ground_truth(&self) -> Result<Option<GroundTruth>> {
         GroundTruth::read(&self.dir)
     }
+}
+
+/// Checks a ROS / TF frame id: 1 to 256 characters of ASCII letters, digits, `_`, `-`, `.` and `/`, at
+/// least one of them a letter or digit. Such a name is written into a launch file, a URDF and a YAML file
+/// without any quoting problem.
+pub fn check_frame_id(f: &str) -> std::result::Result<(), String> {
+    if f.is_empty() || f.len() > 256 {
+        return Err(format!("frame id {f:?} must have 1 to 256 characters"));
+    }
+    if !f
+        .chars()
+        .all(|c| c.is_ascii_alphanumeric() || "_-./".contains(c))
+    {
+        return Err(format!(
+            "frame id {f:?}: only ASCII letters, digits and _ - . / are allowed"
+        ));
+    }
+    if !f.chars().any(|c| c.is_ascii_alphanumeric()) {
+        return Err(format!("frame id {f:?} holds no letter or digit"));
+    }
+    Ok(())
 }
 
 #[cfg(test)]

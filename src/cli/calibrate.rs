@@ -6,10 +6,13 @@ use super::output::{
 };
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
-use depthcal::calibration::robot_to_robot::{calibrate, initialize_only};
+use depthcal::calibration::robot_to_robot::{
+    calibrate_keeping_clouds, initialize_only_keeping_clouds, robot_pair, Calibration, FusedCell,
+};
 use depthcal::cell::Cell;
 use depthcal::geometry::pose::{isometry_to_xyzquat, KukaPose};
-use std::path::PathBuf;
+use depthcal::geometry::robot_formats::{transform_files, Frames};
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// Arguments of `depthcal calibrate`.
@@ -37,6 +40,19 @@ pub struct Args {
     /// Print one JSON object on stdout.
     #[arg(long)]
     json: bool,
+    /// Write the result into DIR (created if missing; only for a trusted result): both fused clouds in
+    /// the reference base frame, T_base1_base2.txt, calibration.json (as --json), a ROS 2 launch file, a
+    /// URDF joint, a TF YAML file and the KUKA, UR and ABB frames.
+    #[arg(long, value_name = "DIR")]
+    output: Option<PathBuf>,
+    /// The reference robot's base frame id in the ROS outputs (default: its `frame` in cell.toml, else
+    /// ROBOT_base).
+    #[arg(long, value_name = "ID")]
+    frame_id: Option<String>,
+    /// The other robot's base frame id in the ROS outputs (default: its `frame` in cell.toml, else
+    /// ROBOT_base).
+    #[arg(long, value_name = "ID")]
+    child_frame_id: Option<String>,
     #[command(flatten)]
     settings: CalibrateSettings,
 }
@@ -52,6 +68,141 @@ fn parse_board_pose(s: &str) -> Result<(String, PathBuf), String> {
     }
 }
 
+/// The fused cloud of the reference robot in `--output DIR` (base1 frame).
+pub const REFERENCE_CLOUD_FILE: &str = "cloud_reference.ply";
+/// The fused cloud of the other robot in `--output DIR`, mapped into the reference base frame.
+pub const OTHER_CLOUD_FILE: &str = "cloud_other.ply";
+/// The JSON of `--json` in `--output DIR`.
+pub const JSON_FILE: &str = "calibration.json";
+
+/// Every file name `--output DIR` writes.
+fn output_names() -> Vec<&'static str> {
+    let mut v = vec![REFERENCE_CLOUD_FILE, OTHER_CLOUD_FILE, JSON_FILE];
+    let t = nalgebra::Isometry3::identity();
+    let f = Frames {
+        parent: "a".into(),
+        child: "b".into(),
+    };
+    v.extend(transform_files(&t, &f).into_iter().map(|(n, _)| n));
+    v
+}
+
+/// Checks `--output DIR` before any work: not a file, its parent exists, it is not and holds no input,
+/// and when it exists it holds only files `--output` writes.
+fn check_output_dir(a: &Args, cell: &Cell) -> Result<()> {
+    let Some(dir) = &a.output else {
+        return Ok(());
+    };
+    if depthcal::tempfiles::is_temp_path(dir) {
+        anyhow::bail!(
+            "--output {}: names like .NAME.tmp-PID are reserved for temporary files",
+            dir.display()
+        );
+    }
+    if dir.exists() && !dir.is_dir() {
+        anyhow::bail!("--output {}: exists and is not a directory", dir.display());
+    }
+    if !dir.exists() {
+        let parent = match dir.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        if !parent.is_dir() {
+            anyhow::bail!(
+                "--output {}: the directory {} does not exist",
+                dir.display(),
+                parent.display()
+            );
+        }
+    }
+    let mut inputs = super::guard::Inputs::default();
+    inputs.add_cell(cell);
+    inputs.add_opt("--init", a.init.as_ref());
+    inputs.add_opt("--config", a.settings.config_path());
+    for (r, f) in &a.board_pose {
+        inputs.add(&format!("--board-pose of {r}"), f);
+    }
+    inputs.check_output_dir("--output", dir)?;
+    let names = output_names();
+    for n in &names {
+        inputs.check_output("--output", &dir.join(n))?;
+    }
+    if dir.is_dir() {
+        let rd = std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))?;
+        let mut foreign = Vec::new();
+        for e in rd {
+            let e = e.with_context(|| format!("reading {}", dir.display()))?;
+            let name = e.file_name().to_string_lossy().into_owned();
+            let ours = names.contains(&name.as_str()) && e.path().is_file();
+            if !ours && !depthcal::tempfiles::is_temp_path(&e.path()) {
+                foreign.push(name);
+            }
+        }
+        foreign.sort();
+        if !foreign.is_empty() {
+            anyhow::bail!(
+                "--output {}: the directory holds files calibrate does not write ({}); give a new or \
+                 empty directory, or one from an earlier --output",
+                dir.display(),
+                foreign.join(", ")
+            );
+        }
+    }
+    Ok(())
+}
+
+/// The frame ids of the ROS outputs: the flags, else the robots' `frame` in cell.toml, else ROBOT_base.
+fn frames(a: &Args, cell: &Cell) -> Result<Frames> {
+    let (r, o) = robot_pair(cell)?;
+    let parent = a.frame_id.clone().unwrap_or_else(|| cell.frame_id(&r.name));
+    let child = a
+        .child_frame_id
+        .clone()
+        .unwrap_or_else(|| cell.frame_id(&o.name));
+    match Frames::new(&parent, &child) {
+        Ok(f) => Ok(f),
+        // Only printed (the ROS command lines): a robot name that makes no valid frame id is kept as it
+        // was before frame ids were checked.
+        Err(_) if a.output.is_none() && a.frame_id.is_none() && a.child_frame_id.is_none() => {
+            Ok(Frames { parent, child })
+        }
+        Err(e) => Err(anyhow::Error::new(e).context(
+            "the frame ids of the ROS outputs (--frame-id, --child-frame-id, or `frame` in cell.toml)",
+        )),
+    }
+}
+
+/// Writes `--output DIR` (a trusted result): the clouds, the JSON and the transform files, each atomically.
+fn write_outputs(
+    dir: &Path,
+    c: &Calibration,
+    fused: &FusedCell,
+    f: &Frames,
+    json: &serde_json::Value,
+) -> Result<()> {
+    if !dir.exists() {
+        std::fs::create_dir(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let colored = |cloud: &depthcal::geometry::PointCloud, rgb: [u8; 3]| {
+        let mut c = cloud.clone();
+        c.colors = Some(vec![rgb; c.len()]);
+        c
+    };
+    if !fused.reference.cloud.is_empty() || !fused.other.cloud.is_empty() {
+        // Orange: the reference robot; blue: the other robot.
+        let r = colored(&fused.reference.cloud, [230, 120, 30]);
+        depthcal::io::write_cloud(dir.join(REFERENCE_CLOUD_FILE), &r)?;
+        let o = colored(&fused.other.cloud.transformed(&c.transform), [40, 110, 230]);
+        depthcal::io::write_cloud(dir.join(OTHER_CLOUD_FILE), &o)?;
+    }
+    let text = serde_json::to_string_pretty(json)? + "\n";
+    depthcal::io::write_atomically(&dir.join(JSON_FILE), |w| w.write_all(text.as_bytes()))?;
+    for (name, text) in transform_files(&c.transform, f) {
+        depthcal::io::write_atomically(&dir.join(name), |w| w.write_all(text.as_bytes()))?;
+    }
+    Ok(())
+}
+
 /// Runs the command.
 pub fn run(a: Args) -> Result<()> {
     let start = Instant::now();
@@ -65,6 +216,8 @@ pub fn run(a: Args) -> Result<()> {
     let cell = Cell::open(&a.cell)?;
     // A malformed optional ground_truth.json is reported before any work.
     cell.ground_truth()?;
+    let frames = frames(&a, &cell)?;
+    check_output_dir(&a, &cell)?;
     if !a.board_pose.is_empty() && a.method != Method::Checkerboard {
         anyhow::bail!("--board-pose is for --method checkerboard");
     }
@@ -83,10 +236,10 @@ pub fn run(a: Args) -> Result<()> {
     }
     let pb = spinner("opening the cell");
     let mut progress = |s: &str| pb.set_message(s.to_string());
-    let mut c = if a.no_refine {
-        initialize_only(&cell, init.as_ref(), &cfg, &mut progress)
+    let (mut c, fused) = if a.no_refine {
+        initialize_only_keeping_clouds(&cell, init.as_ref(), &cfg, &mut progress)
     } else {
-        calibrate(&cell, init.as_ref(), &cfg, &mut progress)
+        calibrate_keeping_clouds(&cell, init.as_ref(), &cfg, &mut progress)
     }
     .with_context(|| format!("calibrating {}", a.cell.display()))?;
     if found_ms > 0.0 {
@@ -109,7 +262,7 @@ pub fn run(a: Args) -> Result<()> {
         .map(|k| c.covariance[(k, k)].max(0.0).sqrt())
         .collect();
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
-    let (parent, child) = (format!("{}_base", c.reference), format!("{}_base", c.other));
+    let (parent, child) = (&frames.parent, &frames.child);
     let ros2 = format!(
         "ros2 run tf2_ros static_transform_publisher --x {:.6} --y {:.6} --z {:.6} --qx {:.8} --qy {:.8} --qz {:.8} --qw {:.8} --frame-id {parent} --child-frame-id {child}",
         xq[0], xq[1], xq[2], xq[3], xq[4], xq[5], xq[6]
@@ -118,7 +271,7 @@ pub fn run(a: Args) -> Result<()> {
         "rosrun tf2_ros static_transform_publisher {:.6} {:.6} {:.6} {:.8} {:.8} {:.8} {:.8} {parent} {child}",
         xq[0], xq[1], xq[2], xq[3], xq[4], xq[5], xq[6]
     );
-    if a.json {
+    {
         let err = |e: Option<(f64, f64)>| {
             e.map(|(r, t)| serde_json::json!({"rotation_deg": r, "translation_mm": t * 1e3}))
         };
@@ -157,12 +310,26 @@ pub fn run(a: Args) -> Result<()> {
             "frames": {"reference": c.frames[0], "other": c.frames[1]},
             "fused_points": {"reference": c.fused_points[0], "other": c.fused_points[1]},
             "ros2": ros2,
+            "frame_ids": {"parent": frames.parent, "child": frames.child},
             "warnings": c.warnings,
             "timings_ms": timings_json(&c.timings_ms),
             "total_ms": total_ms,
         });
-        println!("{}", serde_json::to_string_pretty(&v)?);
-        return super::gate(&c.trust);
+        if let Some(dir) = &a.output {
+            if c.trust.trusted {
+                write_outputs(dir, &c, &fused, &frames, &v)?;
+                eprintln!("wrote {}", dir.display());
+            } else {
+                eprintln!(
+                    "warning: {} not written: the result is not trusted",
+                    dir.display()
+                );
+            }
+        }
+        if a.json {
+            println!("{}", serde_json::to_string_pretty(&v)?);
+            return super::gate(&c.trust);
+        }
     }
     println!(
         "T_base1_base2: {} base -> {} base ({} frames / {} frames, method {})",

@@ -1,4 +1,5 @@
-//! `depthcal convert`: convert a pose file between KUKA XYZ-ABC, 4x4 matrix and x,y,z+quaternion rows.
+//! `depthcal convert`: convert a pose file between KUKA XYZ-ABC, 4x4 matrix, x,y,z+quaternion, UR pose
+//! vector, ABB x,y,z+q1..q4 and Fanuc XYZ-WPR rows.
 
 use clap::Args as ClapArgs;
 use depthcal::geometry::pose::{format_poses, read_poses, write_poses, PoseFormat};
@@ -9,10 +10,10 @@ use std::path::PathBuf;
 pub struct Args {
     /// The pose CSV file to convert.
     pub poses: PathBuf,
-    /// Input format: kuka, matrix or xyzquat (default: recognised from the header line).
+    /// Input format: kuka, matrix, xyzquat, ur, abb or fanuc (default: recognised from the header line).
     #[arg(long)]
     pub from: Option<PoseFormat>,
-    /// Output format: kuka, matrix or xyzquat.
+    /// Output format: kuka, matrix, xyzquat, ur, abb or fanuc.
     #[arg(long)]
     pub to: PoseFormat,
     /// Output file (written atomically); default: stdout.

@@ -131,6 +131,30 @@ impl Inputs {
     }
 }
 
+impl Inputs {
+    /// Refuses an output directory (`flag` names the option) that is one of the inputs or holds one.
+    pub fn check_output_dir(&self, flag: &str, dir: &Path) -> Result<()> {
+        self.check_output(flag, dir)?;
+        let Ok(d) = dir.canonicalize() else {
+            return Ok(());
+        };
+        let held = self
+            .by_path
+            .iter()
+            .filter(|(c, _)| c.starts_with(&d))
+            .min_by(|a, b| a.0.cmp(b.0));
+        if let Some((_, (what, input))) = held {
+            bail!(
+                "refusing to write {flag} {}: the directory holds {what} {} (an input could be \
+                 overwritten); choose another output directory",
+                dir.display(),
+                input.display()
+            );
+        }
+        Ok(())
+    }
+}
+
 /// Checks an output file before any work: not a directory, its directory exists, and its extension is one
 /// of `exts` (lower case, without the dot; empty: any).
 pub fn check_output_file(flag: &str, out: &Path, exts: &[&str]) -> Result<()> {

@@ -39,7 +39,7 @@ pub struct Args {
     /// numbers row-major, metres) or xyzquat (frame,x,y,z,qx,qy,qz,qw, metres).
     #[arg(long, default_value = "kuka")]
     pub robot_format: PoseFormat,
-    /// Format of --target-poses (kuka, matrix or xyzquat).
+    /// Format of --target-poses (kuka, matrix, xyzquat, ur, abb or fanuc).
     #[arg(long, default_value = "matrix")]
     pub target_format: PoseFormat,
     /// Closed form to start from: auto (best fit, default), tsai, park, daniilidis, shah or li.

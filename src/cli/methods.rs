@@ -66,6 +66,11 @@ impl CalibrateSettings {
         cfg.validate()?;
         Ok(cfg)
     }
+
+    /// The `--config` file, if any.
+    pub fn config_path(&self) -> Option<&PathBuf> {
+        self.config.as_ref()
+    }
 }
 
 /// What a method needs beyond the cell itself.

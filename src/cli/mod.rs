@@ -44,7 +44,7 @@ enum Command {
     Compare(compare::Args),
     /// Fuse one robot's depth frames of a cell dataset into a cloud in its base frame.
     Fuse(fuse::Args),
-    /// Convert a pose file between kuka (XYZ-ABC), matrix (4x4) and xyzquat formats.
+    /// Convert a pose file between kuka (XYZ-ABC), matrix (4x4), xyzquat, ur, abb and fanuc formats.
     Convert(convert::Args),
     /// Hand-eye calibration: T_ee_cam and T_base_board from robot poses and camera-to-board poses.
     Handeye(handeye::Args),

@@ -1,9 +1,10 @@
-//! Geometry: the point cloud type, rigid transforms, pose errors, random numbers.
+//! Geometry: the point cloud type, rigid transforms, pose errors and formats, random numbers.
 
 pub mod cloud;
 pub mod plane;
 pub mod pose;
 pub mod rng;
+pub mod robot_formats;
 pub mod transform;
 
 pub use cloud::PointCloud;

@@ -1,4 +1,5 @@
-//! Robot poses: KUKA XYZ-ABC, 4x4 matrices and x,y,z + quaternion, and the pose CSV files of a cell.
+//! Robot poses: KUKA XYZ-ABC, 4x4 matrices, x,y,z + quaternion, UR pose vectors, ABB x,y,z + q1..q4 and
+//! Fanuc XYZ-WPR, and the pose CSV files of a cell.
 //!
 //! Units are converted exactly once, here: every [`Isometry3`] is in metres and radians; KUKA values are
 //! millimetres and degrees (`x_mm`, `a_deg`, ...).
@@ -6,6 +7,11 @@
 //! KUKA convention: `R = Rz(A) · Ry(B) · Rx(C)` (intrinsic Z-Y'-X''), `t = (x, y, z)`. The conversion
 //! back from a rotation returns `A, C ∈ (-180°, 180°]`, `B ∈ [-90°, 90°]`; at gimbal lock (`B = ±90°`)
 //! only `A ∓ C` is defined and depthcal returns `C = 0`.
+//!
+//! UR convention: `x, y, z` in metres and the rotation vector `(rx, ry, rz)` in radians (axis times angle,
+//! angle in `[0, π]`). ABB convention: `x, y, z` in millimetres and the unit quaternion `q1..q4 = w, x, y, z`
+//! (`q1 ≥ 0`). Fanuc convention: `x, y, z` in millimetres and `W, P, R` in degrees, fixed axes X-Y-Z:
+//! `R = Rz(R)·Ry(P)·Rx(W)` (the same matrix as KUKA's `Rz(A)·Ry(B)·Rx(C)` with `W = C, P = B, R = A`).
 
 use crate::error::{Error, Result};
 use crate::geometry::transform::{isometry_from_rows, isometry_to_rows};
@@ -95,6 +101,100 @@ pub fn isometry_to_xyzquat(t: &Isometry3<f64>) -> [f64; 7] {
     [v.x, v.y, v.z, q.i, q.j, q.k, q.w]
 }
 
+/// `[x, y, z, rx, ry, rz]` of an isometry: the Universal Robots pose vector (metres, rotation vector in
+/// radians, angle in `[0, π]`).
+///
+/// Near a half turn the axis and its opposite give the same rotation; the axis is then chosen with its
+/// first non-zero component positive, so that the written vector reads back to itself.
+pub fn isometry_to_ur(t: &Isometry3<f64>) -> [f64; 6] {
+    let q = t.rotation.quaternion();
+    let (mut w, mut axis) = (q.w, q.imag());
+    if w < 0.0 {
+        w = -w;
+        axis = -axis;
+    }
+    let n = axis.norm();
+    let r = if n == 0.0 {
+        Vector3::zeros()
+    } else {
+        if w < 1e-9 {
+            let first = axis
+                .iter()
+                .copied()
+                .find(|c| c.abs() > 1e-12)
+                .unwrap_or(1.0);
+            if first < 0.0 {
+                axis = -axis;
+            }
+        }
+        axis * (2.0 * n.atan2(w) / n)
+    };
+    let v = t.translation.vector;
+    [v.x, v.y, v.z, r.x, r.y, r.z]
+}
+
+/// The isometry of a Universal Robots pose vector `[x, y, z, rx, ry, rz]` (metres, radians).
+pub fn ur_to_isometry(v: &[f64; 6]) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(v[0], v[1], v[2]),
+        UnitQuaternion::from_scaled_axis(Vector3::new(v[3], v[4], v[5])),
+    )
+}
+
+/// `[x_mm, y_mm, z_mm, q1, q2, q3, q4]` of an isometry: an ABB frame (millimetres, unit quaternion
+/// `q1..q4 = w, x, y, z` with `q1 ≥ 0`).
+pub fn isometry_to_abb(t: &Isometry3<f64>) -> [f64; 7] {
+    let q = isometry_to_xyzquat(t);
+    [q[0] * 1e3, q[1] * 1e3, q[2] * 1e3, q[6], q[3], q[4], q[5]]
+}
+
+/// The isometry of an ABB frame `[x_mm, y_mm, z_mm, q1, q2, q3, q4]` (`q1..q4 = w, x, y, z`, unit norm
+/// within [`QUATERNION_NORM_TOLERANCE`]; normalised).
+pub fn abb_to_isometry(v: &[f64; 7]) -> std::result::Result<Isometry3<f64>, String> {
+    if v.iter().any(|x| !x.is_finite()) {
+        return Err("a value is NaN or infinite".into());
+    }
+    let q = Quaternion::new(v[3], v[4], v[5], v[6]);
+    let n = q.norm();
+    if (n - 1.0).abs() > QUATERNION_NORM_TOLERANCE {
+        return Err(format!(
+            "the quaternion (q1,q2,q3,q4) = ({}, {}, {}, {}) has norm {n:.6}, not 1",
+            v[3], v[4], v[5], v[6]
+        ));
+    }
+    Ok(Isometry3::from_parts(
+        Translation3::new(v[0] * 1e-3, v[1] * 1e-3, v[2] * 1e-3),
+        UnitQuaternion::new_normalize(q),
+    ))
+}
+
+/// `[x_mm, y_mm, z_mm, w_deg, p_deg, r_deg]` of an isometry: Fanuc XYZ-WPR with `R = Rz(r)·Ry(p)·Rx(w)`
+/// (`w, r ∈ (-180, 180]`, `p ∈ [-90, 90]`, `w = 0` at gimbal lock).
+pub fn isometry_to_fanuc(t: &Isometry3<f64>) -> [f64; 6] {
+    let k = KukaPose::from_isometry(t);
+    [k.x_mm, k.y_mm, k.z_mm, k.c_deg, k.b_deg, k.a_deg]
+}
+
+/// The isometry of Fanuc XYZ-WPR `[x_mm, y_mm, z_mm, w_deg, p_deg, r_deg]`.
+pub fn fanuc_to_isometry(v: &[f64; 6]) -> Isometry3<f64> {
+    KukaPose {
+        x_mm: v[0],
+        y_mm: v[1],
+        z_mm: v[2],
+        a_deg: v[5],
+        b_deg: v[4],
+        c_deg: v[3],
+    }
+    .to_isometry()
+}
+
+/// Roll, pitch, yaw (radians) of a rotation as URDF defines them: fixed axes X-Y-Z,
+/// `R = Rz(yaw)·Ry(pitch)·Rx(roll)` (`roll = 0` at gimbal lock).
+pub fn rpy_from_rotation(r: &Matrix3<f64>) -> [f64; 3] {
+    let (yaw, pitch, roll) = zyx_from_rotation(r);
+    [roll, pitch, yaw]
+}
+
 /// Largest accepted deviation of a quaternion's norm from 1 (it is then normalised).
 pub const QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
 
@@ -129,18 +229,35 @@ pub enum PoseFormat {
     Matrix,
     /// `frame,x,y,z,qx,qy,qz,qw` — position in metres and a unit quaternion.
     Xyzquat,
+    /// `frame,x,y,z,rx,ry,rz` — Universal Robots pose vector: metres and a rotation vector in radians.
+    Ur,
+    /// `frame,x_mm,y_mm,z_mm,q1,q2,q3,q4` — ABB: millimetres and a unit quaternion `q1..q4 = w, x, y, z`.
+    Abb,
+    /// `frame,x_mm,y_mm,z_mm,w_deg,p_deg,r_deg` — Fanuc XYZ-WPR: millimetres and degrees,
+    /// `R = Rz(r)·Ry(p)·Rx(w)`.
+    Fanuc,
 }
 
 impl PoseFormat {
     /// All formats.
-    pub const ALL: [PoseFormat; 3] = [PoseFormat::Kuka, PoseFormat::Matrix, PoseFormat::Xyzquat];
+    pub const ALL: [PoseFormat; 6] = [
+        PoseFormat::Kuka,
+        PoseFormat::Matrix,
+        PoseFormat::Xyzquat,
+        PoseFormat::Ur,
+        PoseFormat::Abb,
+        PoseFormat::Fanuc,
+    ];
 
-    /// The format's name (`kuka`, `matrix`, `xyzquat`).
+    /// The format's name (`kuka`, `matrix`, `xyzquat`, `ur`, `abb`, `fanuc`).
     pub fn name(self) -> &'static str {
         match self {
             PoseFormat::Kuka => "kuka",
             PoseFormat::Matrix => "matrix",
             PoseFormat::Xyzquat => "xyzquat",
+            PoseFormat::Ur => "ur",
+            PoseFormat::Abb => "abb",
+            PoseFormat::Fanuc => "fanuc",
         }
     }
 
@@ -161,6 +278,13 @@ impl PoseFormat {
             PoseFormat::Xyzquat => {
                 c.extend(["x", "y", "z", "qx", "qy", "qz", "qw"].map(String::from))
             }
+            PoseFormat::Ur => c.extend(["x", "y", "z", "rx", "ry", "rz"].map(String::from)),
+            PoseFormat::Abb => {
+                c.extend(["x_mm", "y_mm", "z_mm", "q1", "q2", "q3", "q4"].map(String::from))
+            }
+            PoseFormat::Fanuc => {
+                c.extend(["x_mm", "y_mm", "z_mm", "w_deg", "p_deg", "r_deg"].map(String::from))
+            }
         }
         c
     }
@@ -173,9 +297,9 @@ impl PoseFormat {
     /// Number of numeric columns after `frame`.
     pub fn value_count(self) -> usize {
         match self {
-            PoseFormat::Kuka => 6,
+            PoseFormat::Kuka | PoseFormat::Ur | PoseFormat::Fanuc => 6,
             PoseFormat::Matrix => 16,
-            PoseFormat::Xyzquat => 7,
+            PoseFormat::Xyzquat | PoseFormat::Abb => 7,
         }
     }
 
@@ -214,11 +338,15 @@ impl PoseFormat {
                 a.copy_from_slice(v);
                 xyzquat_to_isometry(&a)
             }
+            PoseFormat::Ur => Ok(ur_to_isometry(&[v[0], v[1], v[2], v[3], v[4], v[5]])),
+            PoseFormat::Abb => abb_to_isometry(&[v[0], v[1], v[2], v[3], v[4], v[5], v[6]]),
+            PoseFormat::Fanuc => Ok(fanuc_to_isometry(&[v[0], v[1], v[2], v[3], v[4], v[5]])),
         }
     }
 
     /// The numeric columns of an isometry in this format, formatted for a CSV row (fixed decimals:
-    /// KUKA 6 decimals of mm and degrees; matrix and quaternion 9 decimals).
+    /// KUKA 6 decimals of mm and degrees; ABB 6 of mm and 12 of the quaternion; every other format 9
+    /// decimals).
     pub fn format_values(self, t: &Isometry3<f64>) -> String {
         let vals: Vec<f64> = match self {
             PoseFormat::Kuka => {
@@ -227,10 +355,19 @@ impl PoseFormat {
             }
             PoseFormat::Matrix => isometry_to_rows(t).to_vec(),
             PoseFormat::Xyzquat => isometry_to_xyzquat(t).to_vec(),
+            PoseFormat::Ur => isometry_to_ur(t).to_vec(),
+            PoseFormat::Abb => isometry_to_abb(t).to_vec(),
+            PoseFormat::Fanuc => isometry_to_fanuc(t).to_vec(),
         };
-        let prec = if self == PoseFormat::Kuka { 6 } else { 9 };
         vals.iter()
-            .map(|v| {
+            .enumerate()
+            .map(|(i, v)| {
+                let prec = match self {
+                    PoseFormat::Kuka => 6,
+                    PoseFormat::Abb if i < 3 => 6,
+                    PoseFormat::Abb => 12,
+                    _ => 9,
+                };
                 let s = format!("{v:.prec$}");
                 // Avoid "-0.000000".
                 if s.trim_start_matches('-')
@@ -260,8 +397,11 @@ impl FromStr for PoseFormat {
             "kuka" | "xyzabc" => Ok(PoseFormat::Kuka),
             "matrix" | "mat" | "4x4" => Ok(PoseFormat::Matrix),
             "xyzquat" | "quat" | "quaternion" => Ok(PoseFormat::Xyzquat),
+            "ur" | "rotvec" => Ok(PoseFormat::Ur),
+            "abb" => Ok(PoseFormat::Abb),
+            "fanuc" | "xyzwpr" => Ok(PoseFormat::Fanuc),
             _ => Err(format!(
-                "unknown pose format {s:?} (expected kuka, matrix or xyzquat)"
+                "unknown pose format {s:?} (expected kuka, matrix, xyzquat, ur, abb or fanuc)"
             )),
         }
     }
@@ -347,12 +487,12 @@ pub fn parse_poses(
             return Err(Error::format(
                 path,
                 format!(
-                    "line {}: header {} names no known pose format; expected one of \"{}\", \"{}\", \"{}\"",
+                    "line {}: header {} names no known pose format; expected one of {}",
                     hline + 1,
                     shown(header),
-                    PoseFormat::Kuka.header(),
-                    PoseFormat::Matrix.header(),
-                    PoseFormat::Xyzquat.header()
+                    PoseFormat::ALL
+                        .map(|f| format!("{:?}", f.header()))
+                        .join(", ")
                 ),
             ))
         }
