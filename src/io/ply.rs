@@ -272,7 +272,7 @@ fn read_ascii(
             for i in 0..def.count {
                 if lines.next().is_none() {
                     return Err(err(format!(
-                        "element `{name}`: the header says {} entries, the data ends after {i}",
+                        "element `{name}`: the header says {} entries, the data ends after {i} (truncated file, or a header that overstates the count)",
                         def.count
                     )));
                 }
@@ -284,7 +284,7 @@ fn read_ascii(
         for i in 0..def.count {
             let Some((lineno, line)) = lines.next() else {
                 return Err(err(format!(
-                    "the header says {} vertices, the data ends after {i}",
+                    "the header says {} vertices, the data ends after {i} (truncated file, or a header that overstates the count)",
                     def.count
                 )));
             };
