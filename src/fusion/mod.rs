@@ -190,15 +190,8 @@ impl FusedCloud {
     /// each surface was seen from. A point whose viewpoint coincides with it (never for real frames) gets
     /// a zero vector. Empty when the cloud has no viewpoints.
     pub fn sight_directions(&self) -> Vec<[f32; 3]> {
-        if self.viewpoints.len() != self.cloud.points.len() {
-            return Vec::new();
-        }
-        self.cloud
-            .points
-            .iter()
-            .zip(&self.viewpoints)
-            .map(|(p, v)| {
-                let d = [v[0] - p[0], v[1] - p[1], v[2] - p[2]];
+        self.to_viewpoints()
+            .map(|d| {
                 let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
                 if n > 0.0 && n.is_finite() {
                     [d[0] / n, d[1] / n, d[2] / n]
@@ -207,6 +200,19 @@ impl FusedCloud {
                 }
             })
             .collect()
+    }
+
+    /// The vector from each point to its mean camera centre; nothing when the cloud has no viewpoints.
+    fn to_viewpoints(&self) -> impl Iterator<Item = [f32; 3]> + '_ {
+        let n = if self.viewpoints.len() == self.cloud.points.len() {
+            self.viewpoints.len()
+        } else {
+            0
+        };
+        self.cloud.points[..n]
+            .iter()
+            .zip(&self.viewpoints[..n])
+            .map(|(p, v)| [v[0] - p[0], v[1] - p[1], v[2] - p[2]])
     }
 
     /// Gives the cloud normals that carry the side each surface was seen from, unless it has normals
@@ -225,17 +231,8 @@ impl FusedCloud {
     /// Distance from each point to its mean camera centre ([`FusedCloud::viewpoints`]), metres. Empty
     /// when the cloud has no viewpoints.
     pub fn ranges(&self) -> Vec<f32> {
-        if self.viewpoints.len() != self.cloud.points.len() {
-            return Vec::new();
-        }
-        self.cloud
-            .points
-            .iter()
-            .zip(&self.viewpoints)
-            .map(|(p, v)| {
-                let d = [v[0] - p[0], v[1] - p[1], v[2] - p[2]];
-                (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
-            })
+        self.to_viewpoints()
+            .map(|d| (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt())
             .collect()
     }
 
