@@ -150,6 +150,41 @@ fn jacobian(
     j
 }
 
+/// The kernel-weighted normal equations `JᵀWJ`, `JᵀWr` of the active frames, with `Σ|r|²` and their count.
+struct NormalEquations {
+    hess: SMatrix<f64, 12, 12>,
+    grad: SVector<f64, 12>,
+    chi2: f64,
+    frames: usize,
+}
+
+fn normal_equations(
+    frames: &[HandEyeFrame],
+    active: &[bool],
+    x: &Isometry3<f64>,
+    z: &Isometry3<f64>,
+    sigma_r: f64,
+    sigma_t: f64,
+    kernel: Kernel,
+) -> NormalEquations {
+    let mut n = NormalEquations {
+        hess: SMatrix::zeros(),
+        grad: SVector::zeros(),
+        chi2: 0.0,
+        frames: 0,
+    };
+    for (f, _) in frames.iter().zip(active).filter(|(_, a)| **a) {
+        let r = residual(f, x, z, sigma_r, sigma_t);
+        let w = kernel.weight(r.norm());
+        let j = jacobian(f, x, z, sigma_r, sigma_t);
+        n.hess += j.transpose() * j * w;
+        n.grad += j.transpose() * r * w;
+        n.chi2 += r.norm_squared();
+        n.frames += 1;
+    }
+    n
+}
+
 /// The 1-σ of `X = T_ee_cam` at `(x, z)` from the active frames: `s² (JᵀJ)⁻¹` of the whitened residuals,
 /// with `s²` their reduced χ² (so the scales `sigma_r`, `sigma_t` only set the relative weighting), its
 /// rotation block and translation block each reduced to an RMS per axis: `(radians, metres)`, the right
@@ -164,16 +199,8 @@ pub fn hand_eye_sigma(
     sigma_r: f64,
     sigma_t: f64,
 ) -> Option<(f64, f64)> {
-    let mut hess = SMatrix::<f64, 12, 12>::zeros();
-    let mut chi2 = 0.0;
-    let mut m = 0usize;
-    for (f, _) in frames.iter().zip(active).filter(|(_, a)| **a) {
-        let r = residual(f, x, z, sigma_r, sigma_t);
-        let j = jacobian(f, x, z, sigma_r, sigma_t);
-        hess += j.transpose() * j;
-        chi2 += r.norm_squared();
-        m += 1;
-    }
+    let n = normal_equations(frames, active, x, z, sigma_r, sigma_t, Kernel::None);
+    let (hess, chi2, m) = (n.hess, n.chi2, n.frames);
     if m < 3 {
         return None;
     }
@@ -207,15 +234,8 @@ pub fn refine(
     let mut iterations = 0;
     for _ in 0..max_iterations {
         iterations += 1;
-        let mut hess = SMatrix::<f64, 12, 12>::zeros();
-        let mut grad = SVector::<f64, 12>::zeros();
-        for (f, _) in frames.iter().zip(active).filter(|(_, a)| **a) {
-            let r = residual(f, &x, &z, sigma_r, sigma_t);
-            let w = kernel.weight(r.norm());
-            let j = jacobian(f, &x, &z, sigma_r, sigma_t);
-            hess += j.transpose() * j * w;
-            grad += j.transpose() * r * w;
-        }
+        let NormalEquations { hess, grad, .. } =
+            normal_equations(frames, active, &x, &z, sigma_r, sigma_t, kernel);
         let mut accepted = None;
         for _ in 0..12 {
             let mut a = hess;
