@@ -21,6 +21,7 @@ pub mod calibration;
 pub mod camera;
 pub mod capture;
 pub mod cell;
+pub mod config_json;
 pub mod error;
 pub mod features;
 pub mod fusion;

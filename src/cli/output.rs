@@ -7,7 +7,7 @@ use std::time::Duration;
 /// Reads a JSON configuration file of type `T`, or the defaults when no file is given; errors name the
 /// file (and an unknown key names the key).
 ///
-/// The file is a partial configuration merged over the serialised `T::default()` ([`merge_json`]): a
+/// The file is a partial configuration merged over the serialised `T::default()` (`depthcal::config_json::merge_json`): a
 /// nested object such as `{"register": {"voxel": 0.03}}` in a calibrate configuration changes that one
 /// field and keeps the command's own defaults for the rest of `register` (which serde's field defaults
 /// alone would replace by `RegisterConfig::default()`).
@@ -23,42 +23,12 @@ pub fn read_config<T: serde::de::DeserializeOwned + serde::Serialize + Default>(
     config_from_json(&text).with_context(|| format!("{}: not a valid {what}", p.display()))
 }
 
-/// `T` from a partial JSON configuration merged over the serialised `T::default()`.
+/// `T` from a partial JSON configuration merged over the serialised `T::default()`
+/// ([`depthcal::config_json::config_from_json`], shared with the Python package's `config=`).
 pub fn config_from_json<T: serde::de::DeserializeOwned + serde::Serialize + Default>(
     text: &str,
 ) -> anyhow::Result<T> {
-    let patch: serde_json::Value = serde_json::from_str(text)?;
-    if !patch.is_object() {
-        anyhow::bail!("expected a JSON object of configuration fields");
-    }
-    let mut merged = serde_json::to_value(T::default())?;
-    merge_json(&mut merged, patch);
-    Ok(serde_json::from_value(merged)?)
-}
-
-/// Deep merge: every key of `patch` replaces the one of `base`, except that objects present in both are
-/// merged key by key. A one-key object over a different one-key object (an enum changing variant, e.g.
-/// `{"fixed": 0.5}` over `{"auto": {...}}`) replaces it.
-pub fn merge_json(base: &mut serde_json::Value, patch: serde_json::Value) {
-    use serde_json::Value;
-    match (base, patch) {
-        (Value::Object(b), Value::Object(p)) => {
-            let other_variant = b.len() == 1 && p.len() == 1 && p.keys().ne(b.keys());
-            if other_variant {
-                *b = p;
-                return;
-            }
-            for (k, v) in p {
-                match b.get_mut(&k) {
-                    Some(slot) => merge_json(slot, v),
-                    None => {
-                        b.insert(k, v);
-                    }
-                }
-            }
-        }
-        (b, p) => *b = p,
-    }
+    Ok(depthcal::config_json::config_from_json(text)?)
 }
 
 /// An ambiguity (runner-up transform, score ratio, distance) as JSON; the translation under `key`, scaled by
@@ -127,7 +97,8 @@ pub fn matrix4_text(t: &Isometry3<f64>) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{config_from_json, merge_json};
+    use super::config_from_json;
+    use depthcal::config_json::merge_json;
     use depthcal::calibration::robot_to_robot::CalibrateConfig;
     use depthcal::registration::{RegisterConfig, Trim};
 
