@@ -213,7 +213,9 @@ fn build(
     Ok(match method {
         "guess" => {
             let Some(g) = init else {
-                return Err(input_err("method \"guess\" needs init= (a 4x4 matrix or a file)"));
+                return Err(input_err(
+                    "method \"guess\" needs init= (a 4x4 matrix or a file)",
+                ));
             };
             (Box::new(g), 0.0, Vec::new())
         }
@@ -318,8 +320,7 @@ pub fn calibrate(
     let cell = py.detach(|| Cell::open(&dir)).map_err(lib_err)?;
     cell.ground_truth().map_err(lib_err)?;
     let frames = frames(&cell, frame_id, child_frame_id).map_err(lib_err)?;
-    let (initializer, found_ms, setup_warnings) =
-        build(method, &cell, guess, &board_poses, &cfg)?;
+    let (initializer, found_ms, setup_warnings) = build(method, &cell, guess, &board_poses, &cfg)?;
     // The command line prints these on stderr (they are not part of its JSON): Python warnings here.
     for w in &setup_warnings {
         crate::errors::warn(py, w)?;

@@ -91,8 +91,16 @@ impl PyPointCloud {
         format!(
             "PointCloud({} points{}{})",
             self.points.bind(py).shape()[0],
-            if self.normals.is_some() { ", normals" } else { "" },
-            if self.colors.is_some() { ", colors" } else { "" }
+            if self.normals.is_some() {
+                ", normals"
+            } else {
+                ""
+            },
+            if self.colors.is_some() {
+                ", colors"
+            } else {
+                ""
+            }
         )
     }
 }

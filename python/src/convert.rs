@@ -7,17 +7,17 @@ use crate::errors::{input_err, lib_err};
 use depthcal::geometry::transform::{isometry_from_rows, isometry_to_rows};
 use nalgebra::{Isometry3, Matrix6};
 use numpy::ndarray::{ArrayView2, Axis};
-use numpy::{
-    PyArray1, PyArray2, PyArray3, PyArrayMethods, PyUntypedArray,
-    PyUntypedArrayMethods,
-};
+use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
 use std::path::PathBuf;
 
 /// `obj` as a NumPy array: arrays as they are, anything else through `numpy.asarray` (lists, Open3D's
 /// `Vector3dVector`, ...).
-pub fn as_ndarray<'py>(obj: &Bound<'py, PyAny>, what: &str) -> PyResult<Bound<'py, PyUntypedArray>> {
+pub fn as_ndarray<'py>(
+    obj: &Bound<'py, PyAny>,
+    what: &str,
+) -> PyResult<Bound<'py, PyUntypedArray>> {
     if let Ok(a) = obj.cast::<PyUntypedArray>() {
         return Ok(a.clone());
     }
@@ -28,8 +28,12 @@ pub fn as_ndarray<'py>(obj: &Bound<'py, PyAny>, what: &str) -> PyResult<Bound<'p
             type_name(obj)
         ))
     })?;
-    a.cast_into::<PyUntypedArray>()
-        .map_err(|_| input_err(format!("{what}: expected a NumPy array, got {}", type_name(obj))))
+    a.cast_into::<PyUntypedArray>().map_err(|_| {
+        input_err(format!(
+            "{what}: expected a NumPy array, got {}",
+            type_name(obj)
+        ))
+    })
 }
 
 /// The Python type name of `obj`.
@@ -125,7 +129,11 @@ fn check_finite(rows: &[[f32; 3]], what: &str) -> PyResult<()> {
 }
 
 /// The points of an `(N, 3)` float32/float64 array-like, checked finite unless `allow_nonfinite`.
-pub fn points(obj: &Bound<'_, PyAny>, what: &str, allow_nonfinite: bool) -> PyResult<Vec<[f32; 3]>> {
+pub fn points(
+    obj: &Bound<'_, PyAny>,
+    what: &str,
+    allow_nonfinite: bool,
+) -> PyResult<Vec<[f32; 3]>> {
     let a = as_ndarray(obj, what)?;
     let rows = float_rows(&a, what)?;
     if !allow_nonfinite {

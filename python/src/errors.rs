@@ -186,6 +186,7 @@ pub fn untrusted_err(reasons: &[String]) -> PyErr {
 /// Issues a Python `UserWarning` with `msg` (what the command line prints as `warning: ...` on stderr).
 pub fn warn(py: Python<'_>, msg: &str) -> PyResult<()> {
     let w = py.import("warnings")?;
-    w.getattr("warn")?.call1((msg, py.get_type::<pyo3::exceptions::PyUserWarning>(), 2))?;
+    w.getattr("warn")?
+        .call1((msg, py.get_type::<pyo3::exceptions::PyUserWarning>(), 2))?;
     Ok(())
 }

@@ -145,7 +145,10 @@ pub fn handeye(
     cfg.method = method.parse::<HandEyeMethod>().map_err(input_err)?;
     cfg.refine = refine;
     cfg.seed = seed;
-    let (rp, tp) = (convert::path_like(robot_poses), convert::path_like(target_poses));
+    let (rp, tp) = (
+        convert::path_like(robot_poses),
+        convert::path_like(target_poses),
+    );
     let mut frames = match (&rp, &tp) {
         (Some(r), Some(t)) => {
             if frame_ids.is_some() {

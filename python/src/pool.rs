@@ -11,7 +11,9 @@ fn max_threads() -> usize {
 /// Checks a `threads=` value the way the command line checks `--threads`.
 pub fn check_threads(threads: Option<usize>) -> PyResult<()> {
     match threads {
-        Some(0) => Err(input_err("threads must be at least 1 (or None for all cores)")),
+        Some(0) => Err(input_err(
+            "threads must be at least 1 (or None for all cores)",
+        )),
         Some(n) if n > max_threads() => {
             let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
             Err(input_err(format!(

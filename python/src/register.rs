@@ -219,8 +219,7 @@ pub fn register(
     drop_nonfinite: bool,
 ) -> PyResult<PyRegistration> {
     let start = Instant::now();
-    let mut cfg: RegisterConfig =
-        convert::config(config, "registration configuration")?;
+    let mut cfg: RegisterConfig = convert::config(config, "registration configuration")?;
     cfg.seed = seed;
     if voxel.is_some() {
         cfg.voxel = voxel;
@@ -245,7 +244,8 @@ pub fn register(
         CloudArg::Points(_) => None,
     };
     let (src_name, tgt_name) = (name(&src_arg), name(&tgt_arg));
-    let read_from_files = matches!(src_arg, CloudArg::File(_)) || matches!(tgt_arg, CloudArg::File(_));
+    let read_from_files =
+        matches!(src_arg, CloudArg::File(_)) || matches!(tgt_arg, CloudArg::File(_));
     let outcome = pool::run(py, threads, move || -> depthcal::Result<_> {
         let t_read = Instant::now();
         let load = |a: CloudArg| match a {
