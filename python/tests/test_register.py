@@ -245,3 +245,14 @@ def test_bad_thread_counts():
 def test_units_mismatch_is_named_as_the_cli_names_it():
     with pytest.raises(depthcal.Error, match=r"differ 1000x .*millimetres vs metres"):
         depthcal.register(GOOD * 1000.0, GOOD)
+
+
+def test_open3d_clouds_register_directly(demo):
+    o3d = pytest.importorskip("open3d", reason="open3d is not installed")
+    s, t = demo
+    a = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(s.points.astype(np.float64)))
+    b = o3d.io.read_point_cloud(str(TARGET))
+    r1 = depthcal.register(a, b)
+    r2 = depthcal.register(np.asarray(a.points), np.asarray(b.points))
+    r3 = depthcal.register(s, t)
+    assert np.array_equal(r1.transform, r2.transform) and np.array_equal(r1.transform, r3.transform)
