@@ -29,7 +29,9 @@ pub mod index;
 pub mod io;
 pub mod preprocess;
 pub mod registration;
+pub mod report;
 pub mod sim;
+pub mod stats;
 pub mod tempfiles;
 #[cfg(feature = "vision")]
 pub mod vision;

@@ -616,6 +616,7 @@ fn fuse_command_writes_a_cloud_and_reports_json() {
     ]);
     assert!(ok, "{stderr}");
     let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    common::assert_documented(&v);
     assert_eq!(v["frames"], 3);
     let cloud = depthcal::io::read_cloud(&out).unwrap();
     assert_eq!(cloud.len() as u64, v["points"].as_u64().unwrap());

@@ -713,9 +713,11 @@ fn command_json_and_text() {
         depthcal::geometry::transform::isometry_from_rows(&a, "json").unwrap()
     };
     // KUKA rows carry 6 decimals of mm and degrees: the answer is exact to that.
-    let (r, d) = err(&mat(&j["T_ee_cam"]), &x);
+    assert_eq!(j["schema"], "depthcal.handeye/1");
+    common::assert_documented(&j);
+    let (r, d) = err(&mat(&j["T_ee_cam"]["matrix"]), &x);
     assert!(r < 1e-6 && d < 1e-5, "{r} {d}");
-    let (r, d) = err(&mat(&j["T_base_board"]), &z);
+    let (r, d) = err(&mat(&j["T_base_board"]["matrix"]), &z);
     assert!(r < 1e-6 && d < 1e-5, "{r} {d}");
     assert_eq!(j["method"], "refined");
     assert_eq!(j["residuals"].as_array().unwrap().len(), 12);
@@ -727,7 +729,7 @@ fn command_json_and_text() {
     assert!(j["rejected"].as_array().unwrap().is_empty());
     assert!(j["warnings"].is_array());
     assert_eq!(j["closed_forms"].as_array().unwrap().len(), 5);
-    assert!(j["T_base_board_spread"]["rotation_rms_deg"].is_number());
+    assert!(j["target_spread"]["rotation_rms_deg"].is_number());
     // The 1-σ of T_ee_cam under the cell.toml key names; a cell reading this file takes them.
     let (sd, sm) = (
         j["hand_eye_sigma_deg"].as_f64().unwrap(),

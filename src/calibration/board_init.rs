@@ -58,27 +58,18 @@ impl BoardInBase {
                 "no field `T_base_board` (expected the JSON of `depthcal handeye --json`, eye-in-hand)",
             )
         })?;
-        let rows: Vec<f64> = m
-            .as_array()
-            .and_then(|r| {
-                r.iter()
-                    .flat_map(|row| match row.as_array() {
-                        Some(a) => a.iter().map(|x| x.as_f64()).collect::<Vec<_>>(),
-                        None => vec![row.as_f64()],
-                    })
-                    .collect::<Option<Vec<f64>>>()
-            })
-            .filter(|r| r.len() == 16)
-            .ok_or_else(|| {
-                Error::format(
-                    path,
-                    "field `T_base_board` must be a 4x4 matrix (4 rows of 4 numbers)",
-                )
-            })?;
-        let rows: [f64; 16] = rows.try_into().expect("16 numbers");
+        let rows = crate::io::matrix::matrix_from_json(m).map_err(|m| {
+            Error::format(
+                path,
+                format!("field `T_base_board` must be a 4x4 matrix (4 rows of 4 numbers): {m}"),
+            )
+        })?;
         let t = isometry_from_rows(&rows, "T_base_board")
             .map_err(|e| Error::format(path, e.to_string()))?;
-        let spread = v.get("T_base_board_spread");
+        // `target_spread` in the report's schema; `T_base_board_spread` in files of earlier versions.
+        let spread = v
+            .get("target_spread")
+            .or_else(|| v.get("T_base_board_spread"));
         let num = |o: Option<&serde_json::Value>, k: &str| {
             o.and_then(|o| o.get(k)).and_then(|x| x.as_f64())
         };

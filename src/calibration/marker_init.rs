@@ -296,11 +296,7 @@ pub fn markers_in_base(
     for (id, list) in by_id {
         let poses: Vec<Isometry3<f64>> = list.iter().map(|(_, p)| *p).collect();
         let first = average_poses(&poses, None, &avg_cfg)?;
-        let median = |v: &[f64]| {
-            let mut s = v.to_vec();
-            s.sort_by(f64::total_cmp);
-            s[s.len() / 2]
-        };
+        let median = crate::stats::upper_median;
         let lim_r = cfg.outlier_deg.max(4.0 * median(&first.rotation_deg));
         let lim_t = cfg.outlier_mm.max(4.0 * median(&first.translation_mm));
         let keep: Vec<bool> = (0..poses.len())

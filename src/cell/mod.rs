@@ -57,34 +57,15 @@ pub enum HandEyeSpec {
 }
 
 fn matrix_from_json(v: &serde_json::Value) -> std::result::Result<[f64; 16], String> {
-    let nums =
-        |a: &[serde_json::Value]| -> Option<Vec<f64>> { a.iter().map(|x| x.as_f64()).collect() };
-    match v {
-        serde_json::Value::Array(a) if a.len() == 16 => {
-            let n = nums(a).ok_or("the 16 entries must be numbers")?;
-            Ok(n.try_into().unwrap())
-        }
-        serde_json::Value::Array(a) if a.len() == 4 => {
-            let mut m = Vec::with_capacity(16);
-            for row in a {
-                let r = row
-                    .as_array()
-                    .and_then(|r| nums(r))
-                    .filter(|r| r.len() == 4);
-                m.extend(r.ok_or("each of the 4 rows must hold 4 numbers")?);
+    if let serde_json::Value::Object(o) = v {
+        for key in ["T_ee_cam", "transform", "matrix"] {
+            if let Some(inner) = o.get(key) {
+                return crate::io::matrix::matrix_from_json(inner);
             }
-            Ok(m.try_into().unwrap())
         }
-        serde_json::Value::Object(o) => {
-            for key in ["T_ee_cam", "transform", "matrix"] {
-                if let Some(inner) = o.get(key) {
-                    return matrix_from_json(inner);
-                }
-            }
-            Err("expected a key T_ee_cam, transform or matrix holding the 4x4 matrix".into())
-        }
-        _ => Err("expected a 4x4 matrix: 16 numbers row-major or 4 rows of 4 numbers".into()),
+        return Err("expected a key T_ee_cam, transform or matrix holding the 4x4 matrix".into());
     }
+    crate::io::matrix::matrix_from_json(v)
 }
 
 impl Serialize for HandEyeSpec {

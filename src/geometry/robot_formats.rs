@@ -233,6 +233,24 @@ pub fn abb_wobj_text(t: &Isometry3<f64>, f: &Frames) -> String {
     )
 }
 
+/// The ROS 2 command line that publishes the transform as a static TF (metres, quaternion x y z w).
+pub fn ros2_static_tf_command(t: &Isometry3<f64>, f: &Frames) -> String {
+    let xq = isometry_to_xyzquat(t);
+    format!(
+        "ros2 run tf2_ros static_transform_publisher --x {:.6} --y {:.6} --z {:.6} --qx {:.8} --qy {:.8} --qz {:.8} --qw {:.8} --frame-id {} --child-frame-id {}",
+        xq[0], xq[1], xq[2], xq[3], xq[4], xq[5], xq[6], f.parent, f.child
+    )
+}
+
+/// The ROS 1 command line that publishes the transform as a static TF.
+pub fn ros1_static_tf_command(t: &Isometry3<f64>, f: &Frames) -> String {
+    let xq = isometry_to_xyzquat(t);
+    format!(
+        "rosrun tf2_ros static_transform_publisher {:.6} {:.6} {:.6} {:.8} {:.8} {:.8} {:.8} {} {}",
+        xq[0], xq[1], xq[2], xq[3], xq[4], xq[5], xq[6], f.parent, f.child
+    )
+}
+
 /// Every transform file of `calibrate --output` but `calibration.json`: (file name, content).
 pub fn transform_files(t: &Isometry3<f64>, f: &Frames) -> Vec<(&'static str, String)> {
     vec![
