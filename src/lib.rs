@@ -28,9 +28,12 @@ pub mod fusion;
 pub mod geometry;
 pub mod index;
 pub mod io;
+pub mod methods;
 pub mod preprocess;
 pub mod registration;
+pub mod report;
 pub mod sim;
+pub mod stats;
 pub mod tempfiles;
 #[cfg(feature = "vision")]
 pub mod vision;

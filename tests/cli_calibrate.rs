@@ -16,13 +16,15 @@ fn calibrate_refines_and_no_refine_reports_the_initial_estimate() {
     let (code, out, err) = depthcal(&["calibrate", DEMO, "--json", "--threads", "2"]);
     assert_eq!(code, 0, "{err}");
     let v = json(&out);
+    common::assert_documented(&v);
     assert_eq!(v["refined"], true);
     assert!(v["error_vs_truth"]["rotation_deg"].as_f64().unwrap() < 0.1);
-    assert!(v["error_vs_truth"]["translation_mm"].as_f64().unwrap() < 1.0);
+    assert!(v["error_vs_truth"]["translation_m"].as_f64().unwrap() < 1e-3);
     let (code, out, err) =
         depthcal(&["calibrate", DEMO, "--json", "--no-refine", "--threads", "2"]);
     assert_eq!(code, 0, "{err}");
     let n = json(&out);
+    common::assert_documented(&n);
     assert_eq!(n["refined"], false);
     assert_eq!(n["transform"], n["initial"]["transform"]);
     assert!(
@@ -50,10 +52,11 @@ fn compare_runs_depth_and_says_why_the_others_are_skipped() {
     let (code, out, err) = depthcal(&["compare", DEMO, "--json", "--threads", "2"]);
     assert_eq!(code, 0, "{err}");
     let v = json(&out);
+    common::assert_documented(&v);
     let m = v["methods"].as_array().unwrap();
     let depth = m.iter().find(|x| x["method"] == "depth").unwrap();
     assert_eq!(depth["status"], "ok");
-    assert!(depth["error_vs_truth"]["translation_mm"].as_f64().unwrap() < 1.0);
+    assert!(depth["error_vs_truth"]["translation_m"].as_f64().unwrap() < 1e-3);
     assert!(depth["disagreement"].is_null(), "nothing to disagree with");
     for name in ["checkerboard", "marker", "features"] {
         let x = m.iter().find(|x| x["method"] == name).unwrap();

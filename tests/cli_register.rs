@@ -8,7 +8,7 @@ use depthcal::PointCloud;
 use std::path::Path;
 
 fn transform_of(json: &serde_json::Value) -> nalgebra::Isometry3<f64> {
-    let m: Vec<f64> = json["transform"]
+    let m: Vec<f64> = json["transform"]["matrix"]
         .as_array()
         .unwrap()
         .iter()
@@ -43,10 +43,11 @@ fn json_contract_output_file_and_init() {
     ]);
     assert_eq!(code, 0, "{stderr}");
     let v: serde_json::Value = serde_json::from_str(&stdout).expect("stdout is one JSON object");
+    common::assert_documented(&v);
     for key in [
         "transform",
         "fitness",
-        "inlier_rmse",
+        "inlier_rmse_m",
         "overlap",
         "converged",
         "covariance",
@@ -55,6 +56,11 @@ fn json_contract_output_file_and_init() {
         assert!(v.get(key).is_some(), "missing {key}");
     }
     assert_eq!(v["covariance"].as_array().unwrap().len(), 6);
+    assert_eq!(v["schema"], "depthcal.registration/1");
+    assert_eq!(
+        v["transform"]["quaternion_xyzw"].as_array().unwrap().len(),
+        4
+    );
     assert!(v["converged"].as_bool().unwrap());
     let t = transform_of(&v);
     let (r, d) = pose_error(&t, &pose.inverse());

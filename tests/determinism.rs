@@ -11,7 +11,7 @@ fn s(p: &Path) -> &str {
 /// The bits of every number of `v`'s "transform".
 fn transform_bits(stdout: &str) -> Vec<u64> {
     let v: serde_json::Value = serde_json::from_str(stdout).expect("one JSON object");
-    v["transform"]
+    v["transform"]["matrix"]
         .as_array()
         .unwrap()
         .iter()

@@ -44,7 +44,7 @@ struct Outcome {
 }
 
 fn matrix4(v: &serde_json::Value) -> Option<Isometry3<f64>> {
-    let rows = v.as_array()?;
+    let rows = v.get("matrix").unwrap_or(v).as_array()?;
     let mut m = Matrix4::zeros();
     for (r, row) in rows.iter().enumerate().take(4) {
         for (c, x) in row.as_array()?.iter().enumerate().take(4) {
@@ -122,8 +122,9 @@ fn calibrate(cell: &ForeignCell, extra: &[&str]) -> Outcome {
         .pointer("/error_vs_truth/rotation_deg")
         .and_then(|x| x.as_f64());
     o.trans_mm = v
-        .pointer("/error_vs_truth/translation_mm")
-        .and_then(|x| x.as_f64());
+        .pointer("/error_vs_truth/translation_m")
+        .and_then(|x| x.as_f64())
+        .map(|m| m * 1e3);
     if let Some(est) = est {
         let d = left_increment(&est, &cell.truth);
         let w = d.fixed_rows::<3>(0).into_owned();

@@ -12,8 +12,8 @@ use depthcal::calibration::handeye::{
     calibrate_hand_eye, frames_from_records, motion_pairs, solve_closed_form, HandEyeConfig,
     HandEyeFrame, HandEyeMethod,
 };
-use depthcal::geometry::pose::{parse_poses, PoseFormat, PoseRecord};
 use depthcal::geometry::Rng;
+use depthcal::io::poses::{parse_poses, PoseFormat, PoseRecord};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use std::path::{Path, PathBuf};
 
@@ -253,13 +253,13 @@ fn write_protocol_data() {
         };
         let robot = rec(&|f| f.t_base_ee);
         let target = rec(&|f| f.t_cam_board);
-        depthcal::geometry::pose::write_poses(
+        depthcal::io::poses::write_poses(
             out.join(format!("trial{trial:03}_robot.csv")),
             &robot,
             PoseFormat::Matrix,
         )
         .unwrap();
-        depthcal::geometry::pose::write_poses(
+        depthcal::io::poses::write_poses(
             out.join(format!("trial{trial:03}_target.csv")),
             &target,
             PoseFormat::Matrix,
@@ -684,9 +684,8 @@ fn command_json_and_text() {
     let (frames, x, z) = simulate(21, 12, false);
     let rp = dir.join("robot.csv");
     let tp = dir.join("board.csv");
-    depthcal::geometry::pose::write_poses(&rp, &records(&frames, true), PoseFormat::Kuka).unwrap();
-    depthcal::geometry::pose::write_poses(&tp, &records(&frames, false), PoseFormat::Xyzquat)
-        .unwrap();
+    depthcal::io::poses::write_poses(&rp, &records(&frames, true), PoseFormat::Kuka).unwrap();
+    depthcal::io::poses::write_poses(&tp, &records(&frames, false), PoseFormat::Xyzquat).unwrap();
     let out = depthcal(&[
         "handeye",
         "--robot-poses",
@@ -713,9 +712,11 @@ fn command_json_and_text() {
         depthcal::geometry::transform::isometry_from_rows(&a, "json").unwrap()
     };
     // KUKA rows carry 6 decimals of mm and degrees: the answer is exact to that.
-    let (r, d) = err(&mat(&j["T_ee_cam"]), &x);
+    assert_eq!(j["schema"], "depthcal.handeye/1");
+    common::assert_documented(&j);
+    let (r, d) = err(&mat(&j["T_ee_cam"]["matrix"]), &x);
     assert!(r < 1e-6 && d < 1e-5, "{r} {d}");
-    let (r, d) = err(&mat(&j["T_base_board"]), &z);
+    let (r, d) = err(&mat(&j["T_base_board"]["matrix"]), &z);
     assert!(r < 1e-6 && d < 1e-5, "{r} {d}");
     assert_eq!(j["method"], "refined");
     assert_eq!(j["residuals"].as_array().unwrap().len(), 12);
@@ -727,7 +728,7 @@ fn command_json_and_text() {
     assert!(j["rejected"].as_array().unwrap().is_empty());
     assert!(j["warnings"].is_array());
     assert_eq!(j["closed_forms"].as_array().unwrap().len(), 5);
-    assert!(j["T_base_board_spread"]["rotation_rms_deg"].is_number());
+    assert!(j["target_spread"]["rotation_rms_deg"].is_number());
     // The 1-σ of T_ee_cam under the cell.toml key names; a cell reading this file takes them.
     let (sd, sm) = (
         j["hand_eye_sigma_deg"].as_f64().unwrap(),
@@ -780,7 +781,7 @@ fn command_json_and_text() {
     // A frame missing on one side: exit code 1 and a message naming file and frame.
     let mut target = records(&frames, false);
     target.pop();
-    depthcal::geometry::pose::write_poses(&tp, &target, PoseFormat::Matrix).unwrap();
+    depthcal::io::poses::write_poses(&tp, &target, PoseFormat::Matrix).unwrap();
     let out = depthcal(&[
         "handeye",
         "--robot-poses",

@@ -5,13 +5,13 @@
 mod common;
 use common::{depthcal, scratch};
 use depthcal::cell::Cell;
-use depthcal::geometry::pose::{
-    format_poses, isometry_to_xyzquat, parse_poses, read_poses, write_poses, KukaPose, PoseFormat,
-    PoseRecord,
-};
+use depthcal::geometry::pose::{isometry_to_xyzquat, KukaPose};
 use depthcal::geometry::robot_formats::{self as rf, Frames};
 use depthcal::geometry::transform::{pose_error, random_isometry};
 use depthcal::geometry::Rng;
+use depthcal::io::poses::{
+    format_poses, parse_poses, read_poses, write_poses, PoseFormat, PoseRecord,
+};
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 use std::collections::HashMap;
 use std::f64::consts::{FRAC_PI_2, PI};
@@ -545,7 +545,7 @@ fn calibrate_output_writes_every_file() {
     );
     assert_eq!(v["trusted"], true);
     let m = depthcal::io::read_matrix_file(out.join("T_base1_base2.txt")).unwrap();
-    let rows: Vec<f64> = v["transform"]
+    let rows: Vec<f64> = v["transform"]["matrix"]
         .as_array()
         .unwrap()
         .iter()
@@ -556,18 +556,18 @@ fn calibrate_output_writes_every_file() {
         assert!((mm[k] - rows[k]).abs() < 1e-11, "{k}");
     }
     let a = launch_args(&std::fs::read_to_string(out.join("static_tf.launch.py")).unwrap());
-    let xq = &v["xyz_quaternion"];
-    for (flag, key) in [
-        ("--x", "x"),
-        ("--y", "y"),
-        ("--z", "z"),
-        ("--qx", "qx"),
-        ("--qy", "qy"),
-        ("--qz", "qz"),
-        ("--qw", "qw"),
+    let (xyz, q) = (&v["transform"]["xyz_m"], &v["transform"]["quaternion_xyzw"]);
+    for (flag, value) in [
+        ("--x", &xyz[0]),
+        ("--y", &xyz[1]),
+        ("--z", &xyz[2]),
+        ("--qx", &q[0]),
+        ("--qy", &q[1]),
+        ("--qz", &q[2]),
+        ("--qw", &q[3]),
     ] {
         let l: f64 = a[flag].parse().unwrap();
-        assert!((l - xq[key].as_f64().unwrap()).abs() < 1e-9, "{flag}");
+        assert!((l - value.as_f64().unwrap()).abs() < 1e-9, "{flag}");
     }
     assert_eq!(a["--frame-id"], "left_base");
     assert_eq!(a["--child-frame-id"], "robot2/base_link");

@@ -44,7 +44,7 @@ fn error_vs_truth(v: &serde_json::Value) -> (f64, f64) {
     let e = &v["error_vs_truth"];
     (
         e["rotation_deg"].as_f64().unwrap(),
-        e["translation_mm"].as_f64().unwrap(),
+        e["translation_m"].as_f64().unwrap() * 1e3,
     )
 }
 

@@ -150,7 +150,7 @@ fn simulate_intrinsics_handeye_and_calibrate_by_checkerboard() {
         ]);
         assert!(ok, "{err}");
         let v: serde_json::Value = serde_json::from_str(&out).unwrap();
-        let rows: Vec<f64> = v["T_ee_cam"]
+        let rows: Vec<f64> = v["T_ee_cam"]["matrix"]
             .as_array()
             .unwrap()
             .iter()
@@ -184,7 +184,7 @@ fn simulate_intrinsics_handeye_and_calibrate_by_checkerboard() {
         let e = &v["initial"]["error_vs_truth"];
         let (r, t) = (
             e["rotation_deg"].as_f64().unwrap(),
-            e["translation_mm"].as_f64().unwrap(),
+            e["translation_m"].as_f64().unwrap() * 1e3,
         );
         assert!(r < 0.2 && t < 2.0, "{args:?}: initial {r}° {t} mm");
         let _ = truth;

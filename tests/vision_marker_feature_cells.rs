@@ -246,7 +246,7 @@ fn compare_prints_every_method_the_cell_allows() {
             "{m}: {x}"
         );
         assert!(
-            x["disagreement"]["translation_mm"].as_f64().unwrap() < 3.0,
+            x["disagreement"]["translation_m"].as_f64().unwrap() < 3e-3,
             "{m}: {x}"
         );
         assert!(x["time_ms"].as_f64().unwrap() > 0.0);

@@ -145,13 +145,7 @@ pub struct PoseAverage {
     pub translation_max_mm: f64,
 }
 
-fn rms(v: &[f64]) -> f64 {
-    if v.is_empty() {
-        0.0
-    } else {
-        (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt()
-    }
-}
+use crate::stats::rms;
 
 /// Averages poses (rotation by [`average_rotations`], translation by the weighted mean or, with L1 steps,
 /// the weighted geometric median) and reports the spread of the poses about the average.

@@ -58,27 +58,18 @@ impl BoardInBase {
                 "no field `T_base_board` (expected the JSON of `depthcal handeye --json`, eye-in-hand)",
             )
         })?;
-        let rows: Vec<f64> = m
-            .as_array()
-            .and_then(|r| {
-                r.iter()
-                    .flat_map(|row| match row.as_array() {
-                        Some(a) => a.iter().map(|x| x.as_f64()).collect::<Vec<_>>(),
-                        None => vec![row.as_f64()],
-                    })
-                    .collect::<Option<Vec<f64>>>()
-            })
-            .filter(|r| r.len() == 16)
-            .ok_or_else(|| {
-                Error::format(
-                    path,
-                    "field `T_base_board` must be a 4x4 matrix (4 rows of 4 numbers)",
-                )
-            })?;
-        let rows: [f64; 16] = rows.try_into().expect("16 numbers");
+        let rows = crate::io::matrix::matrix_from_json(m).map_err(|m| {
+            Error::format(
+                path,
+                format!("field `T_base_board` must be a 4x4 matrix (4 rows of 4 numbers): {m}"),
+            )
+        })?;
         let t = isometry_from_rows(&rows, "T_base_board")
             .map_err(|e| Error::format(path, e.to_string()))?;
-        let spread = v.get("T_base_board_spread");
+        // `target_spread` in the report's schema; `T_base_board_spread` in files of earlier versions.
+        let spread = v
+            .get("target_spread")
+            .or_else(|| v.get("T_base_board_spread"));
         let num = |o: Option<&serde_json::Value>, k: &str| {
             o.and_then(|o| o.get(k)).and_then(|x| x.as_f64())
         };
@@ -160,13 +151,18 @@ impl Initializer for CheckerboardInitializer {
     }
 }
 
-/// The checkerboard initialiser of a cell: each robot's `T_base_board` from `given` (`(robot name,
-/// handeye JSON)`, see [`BoardInBase::from_handeye_json`]) or else, with the `vision` feature, from its
-/// colour images of the board that `cell.toml`'s `[board]` table describes. Returns the initialiser and
-/// warnings (frames where the board was not found).
-pub fn checkerboard_initializer(
+/// Finds a robot's board pose in its colour images (`depthcal::vision::initializers` with the `vision`
+/// feature; [`board_needs_vision`] without), noting frames it could not use in the warnings.
+pub type BoardFinder<'a> =
+    dyn FnMut(&CellRobot, &Checkerboard, &mut Vec<String>) -> Result<BoardInBase> + 'a;
+
+/// The checkerboard initialiser of a cell: each robot's `T_base_board` from `given` (robot name → a
+/// `depthcal handeye --json` file) or, for robots without one, found by `find` in the robot's colour
+/// images with the cell's `[board]`. Returns it with warnings about frames not used.
+pub fn checkerboard_initializer_with(
     cell: &Cell,
     given: &[(String, PathBuf)],
+    find: &mut BoardFinder<'_>,
 ) -> Result<(CheckerboardInitializer, Vec<String>)> {
     let (reference, other) = robot_pair(cell)?;
     let manifest = cell.dir.join(crate::cell::MANIFEST_FILE);
@@ -181,45 +177,29 @@ pub fn checkerboard_initializer(
         let Some(board) = Checkerboard::from_manifest_extra(&cell.manifest.extra, &manifest)?
         else {
             return Err(Error::InvalidInput(format!(
-                "{}: no [board] table (cols, rows, square_m): the checkerboard method needs the board's                  geometry, or give robot {:?}'s board pose from a hand-eye run",
+                "{}: no [board] table (cols, rows, square_m): the checkerboard method needs the board's \
+                 geometry, or give robot {:?}'s board pose from a hand-eye run",
                 manifest.display(),
                 r.name
             )));
         };
-        board_from_images(r, &board, &mut warnings)
+        find(r, &board, &mut warnings)
     };
     let reference = side(reference)?;
     let other = side(other)?;
     Ok((CheckerboardInitializer { reference, other }, warnings))
 }
 
-#[cfg(feature = "vision")]
-fn board_from_images(
-    r: &CellRobot,
-    board: &Checkerboard,
-    warnings: &mut Vec<String>,
-) -> Result<BoardInBase> {
-    use crate::vision::observe::{board_in_robot_base, ObserveConfig};
-    let b = board_in_robot_base(r, board, &ObserveConfig::default())?;
-    for line in b.observations.rejected_lines() {
-        warnings.push(format!("robot {:?}: {line}", r.name));
-    }
-    let n = b.frames.len();
-    Ok(BoardInBase::from_average(
-        &r.name,
-        &b.average,
-        &format!("{n} colour images"),
-    ))
-}
-
-#[cfg(not(feature = "vision"))]
-fn board_from_images(
+/// The [`BoardFinder`] of a build without the `vision` feature: an error saying how to get one.
+pub fn board_needs_vision(
     r: &CellRobot,
     _board: &Checkerboard,
     _warnings: &mut Vec<String>,
 ) -> Result<BoardInBase> {
     Err(Error::InvalidInput(format!(
-        "robot {:?}: finding the board in its colour images needs depthcal built with the `vision`          feature (OpenCV): `cargo build --release --features vision`; or give the board pose from an          earlier hand-eye run (calibrate --board-pose {}=HANDEYE.json)",
+        "robot {:?}: finding the board in its colour images needs depthcal built with the `vision` \
+         feature (OpenCV): `cargo build --release --features vision`; or give the board pose from an \
+         earlier hand-eye run (calibrate --board-pose {}=HANDEYE.json)",
         r.name, r.name
     )))
 }

@@ -299,23 +299,7 @@ fn median_f32(v: &mut [f32]) -> f64 {
     quantile_f32(v, 0.5)
 }
 
-fn quantile_f32(v: &mut [f32], q: f64) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    let mid = ((v.len() as f64 * q) as usize).min(v.len() - 1);
-    let (_, m, _) = v.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
-    *m as f64
-}
-
-fn median_f64(v: &[f64]) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    let mut s = v.to_vec();
-    s.sort_by(|a, b| a.total_cmp(b));
-    s[s.len() / 2]
-}
+use crate::stats::{quantile_in_place_f32 as quantile_f32, upper_median as median_f64};
 
 fn splitmix(mut z: u64) -> u64 {
     z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
@@ -1237,7 +1221,7 @@ mod tests {
     /// Builds the 7-Scenes real-depth cell of `tests/calibrate_real.rs` (interleaved frames) in `dir`.
     fn build_seven_scenes(data: &Path, dir: &Path) {
         use crate::cell::{CellManifest, RobotEntry};
-        use crate::geometry::pose::{write_poses, PoseFormat, PoseRecord};
+        use crate::io::poses::{write_poses, PoseFormat, PoseRecord};
         let iso = |t: [f64; 3], r: [f64; 3]| {
             Isometry3::from_parts(
                 Translation3::new(t[0], t[1], t[2]),

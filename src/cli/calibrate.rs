@@ -1,17 +1,17 @@
 //! `depthcal calibrate CELL_DIR`: robot-to-robot calibration of a cell dataset.
 
-use super::methods::{build, CalibrateSettings, Method, MethodInputs};
-use super::output::{
-    ambiguity_json, matrix4_json, matrix4_text, matrix6_json, spinner, timings_json,
-};
+use super::methods::{CalibrateSettings, Method, MethodInputs};
+use super::output::{matrix4_text, spinner};
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
-use depthcal::calibration::robot_to_robot::{
-    calibrate_keeping_clouds, initialize_only_keeping_clouds, robot_pair, Calibration, FusedCell,
-};
+use depthcal::calibration::robot_to_robot::{robot_pair, Calibration, FusedCell};
 use depthcal::cell::Cell;
 use depthcal::geometry::pose::{isometry_to_xyzquat, KukaPose};
-use depthcal::geometry::robot_formats::{transform_files, Frames};
+use depthcal::geometry::robot_formats::{
+    ros1_static_tf_command, ros2_static_tf_command, transform_files, Frames,
+};
+use depthcal::methods::calibrate_with_method;
+use depthcal::report::CalibrationReport;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -178,7 +178,7 @@ fn write_outputs(
     c: &Calibration,
     fused: &FusedCell,
     f: &Frames,
-    json: &serde_json::Value,
+    json: &CalibrationReport,
 ) -> Result<()> {
     if !dir.exists() {
         std::fs::create_dir(dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -230,27 +230,11 @@ pub fn run(a: Args) -> Result<()> {
         init: a.init.clone(),
         board_pose: a.board_pose.clone(),
     };
-    let (init, found_ms, warnings) = build(method, &cell, &inputs, &cfg)?;
-    for w in warnings {
-        eprintln!("warning: {w}");
-    }
     let pb = spinner("opening the cell");
     let mut progress = |s: &str| pb.set_message(s.to_string());
-    let (mut c, fused) = if a.no_refine {
-        initialize_only_keeping_clouds(&cell, init.as_ref(), &cfg, &mut progress)
-    } else {
-        calibrate_keeping_clouds(&cell, init.as_ref(), &cfg, &mut progress)
-    }
-    .with_context(|| format!("calibrating {}", a.cell.display()))?;
-    if found_ms > 0.0 {
-        // The image targets are found before the clouds are fused.
-        let key = match method {
-            Method::Checkerboard => "board_poses",
-            Method::Marker => "marker_poses",
-            _ => "keypoints",
-        };
-        c.timings_ms.insert(0, (key.into(), found_ms));
-    }
+    let (c, fused) =
+        calibrate_with_method(&cell, method, &inputs, &cfg, !a.no_refine, &mut progress)
+            .with_context(|| format!("calibrating {}", a.cell.display()))?;
     pb.finish_and_clear();
     for w in &c.warnings {
         eprintln!("warning: {w}");
@@ -262,74 +246,23 @@ pub fn run(a: Args) -> Result<()> {
         .map(|k| c.covariance[(k, k)].max(0.0).sqrt())
         .collect();
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
-    let (parent, child) = (&frames.parent, &frames.child);
-    let ros2 = format!(
-        "ros2 run tf2_ros static_transform_publisher --x {:.6} --y {:.6} --z {:.6} --qx {:.8} --qy {:.8} --qz {:.8} --qw {:.8} --frame-id {parent} --child-frame-id {child}",
-        xq[0], xq[1], xq[2], xq[3], xq[4], xq[5], xq[6]
-    );
-    let ros1 = format!(
-        "rosrun tf2_ros static_transform_publisher {:.6} {:.6} {:.6} {:.8} {:.8} {:.8} {:.8} {parent} {child}",
-        xq[0], xq[1], xq[2], xq[3], xq[4], xq[5], xq[6]
-    );
-    {
-        let err = |e: Option<(f64, f64)>| {
-            e.map(|(r, t)| serde_json::json!({"rotation_deg": r, "translation_mm": t * 1e3}))
-        };
-        let v = serde_json::json!({
-            "cell": a.cell,
-            "reference": c.reference,
-            "other": c.other,
-            "method": c.method,
-            "transform": matrix4_json(t),
-            "xyz_quaternion": {"x": xq[0], "y": xq[1], "z": xq[2], "qx": xq[3], "qy": xq[4], "qz": xq[5], "qw": xq[6]},
-            "kuka_xyzabc": {"x_mm": kuka.x_mm, "y_mm": kuka.y_mm, "z_mm": kuka.z_mm, "a_deg": kuka.a_deg, "b_deg": kuka.b_deg, "c_deg": kuka.c_deg},
-            "covariance": matrix6_json(&c.covariance),
-            "covariance_parameters": "[rx, ry, rz (rad), tx, ty, tz (m)], left increment in the reference base frame",
-            "sigma": {"rotation_deg": [sd[0].to_degrees(), sd[1].to_degrees(), sd[2].to_degrees()], "translation_mm": [sd[3] * 1e3, sd[4] * 1e3, sd[5] * 1e3]},
-            "fitness": c.fitness,
-            "inlier_rmse": c.inlier_rmse,
-            "overlap": c.overlap,
-            "refined": c.refined,
-            "converged": c.converged,
-            "degenerate": c.degeneracy.is_degenerate(),
-            "degeneracy": c.degeneracy,
-            "priors_used": c.priors_used,
-            "priors_assumed": c.priors_assumed,
-            "trusted": c.trust.trusted,
-            "reasons": c.trust.reasons,
-            "suggestions": c.trust.suggestions,
-            "free_space": c.free_space,
-            "ambiguity": c.ambiguity.as_ref().map(|x| ambiguity_json(x, "translation_mm", 1e3)),
-            "initial": {"transform": matrix4_json(&c.initial.transform), "detail": c.initial.detail,
-                        "sigma_rotation_deg": c.initial.sigma_rotation_deg, "sigma_translation_mm": c.initial.sigma_translation_m * 1e3,
-                        "error_vs_truth": err(c.initial_error_vs_truth)},
-            "error_vs_truth": err(c.error_vs_truth),
-            "normalised_error": c.normalised_error,
-            "consistency": c.consistency,
-            "inputs_covariance": matrix6_json(&c.inputs_covariance),
-            "frames": {"reference": c.frames[0], "other": c.frames[1]},
-            "fused_points": {"reference": c.fused_points[0], "other": c.fused_points[1]},
-            "ros2": ros2,
-            "frame_ids": {"parent": frames.parent, "child": frames.child},
-            "warnings": c.warnings,
-            "timings_ms": timings_json(&c.timings_ms),
-            "total_ms": total_ms,
-        });
-        if let Some(dir) = &a.output {
-            if c.trust.trusted {
-                write_outputs(dir, &c, &fused, &frames, &v)?;
-                eprintln!("wrote {}", dir.display());
-            } else {
-                eprintln!(
-                    "warning: {} not written: the result is not trusted",
-                    dir.display()
-                );
-            }
+    let ros2 = ros2_static_tf_command(t, &frames);
+    let ros1 = ros1_static_tf_command(t, &frames);
+    let report = CalibrationReport::new(&c, &a.cell.display().to_string(), &frames, total_ms);
+    if let Some(dir) = &a.output {
+        if c.trust.trusted {
+            write_outputs(dir, &c, &fused, &frames, &report)?;
+            eprintln!("wrote {}", dir.display());
+        } else {
+            eprintln!(
+                "warning: {} not written: the result is not trusted",
+                dir.display()
+            );
         }
-        if a.json {
-            println!("{}", serde_json::to_string_pretty(&v)?);
-            return super::gate(&c.trust);
-        }
+    }
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return super::gate(&c.trust);
     }
     println!(
         "T_base1_base2: {} base -> {} base ({} frames / {} frames, method {})",

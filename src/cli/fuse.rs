@@ -158,20 +158,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     depthcal::io::write_cloud(&a.output, &fused.cloud)?;
     if a.json {
-        let out = serde_json::json!({
-            "robot": name,
-            "output": a.output,
-            "frames": s.frames,
-            "points_in": s.points_in,
-            "points_cropped": s.points_cropped,
-            "voxel_size_m": s.voxel_size_m,
-            "voxels": s.voxels,
-            "sparse_removed": s.sparse_removed,
-            "outliers_removed": s.outliers_removed,
-            "points": s.points_out,
-            "normals": fused.cloud.normals.is_some(),
-            "seconds": seconds,
-        });
+        let out = depthcal::report::FusionReport::new(
+            &fused,
+            &name,
+            Some(a.output.display().to_string()),
+            seconds,
+        );
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
         println!(

@@ -1,16 +1,16 @@
 //! `depthcal handeye`: hand-eye calibration (`T_ee_cam` and `T_base_board`) from robot poses and board
 //! poses seen by the camera.
 
-use super::output::{matrix4_json, matrix4_text};
+use super::output::matrix4_text;
 use clap::Args as ClapArgs;
 use depthcal::calibration::handeye::{
     calibrate_hand_eye, frames_from_records, HandEyeConfig, HandEyeMethod, HandEyeResult,
 };
-use depthcal::geometry::pose::{
-    format_from_header, isometry_to_xyzquat, read_poses, KukaPose, PoseFormat,
-};
+use depthcal::geometry::pose::{isometry_to_xyzquat, KukaPose};
+use depthcal::io::poses::{format_from_header, read_poses, PoseFormat};
+use depthcal::report::handeye::ResidualSummary;
+use depthcal::report::{HandEyeInputs, HandEyeReport};
 use nalgebra::Isometry3;
-use serde_json::json;
 use std::path::PathBuf;
 
 /// Arguments of `depthcal handeye`.
@@ -119,10 +119,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         eprintln!("warning: {w}");
     }
     if a.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&to_json(&r, &a, x_name, z_name))?
+        let report = HandEyeReport::new(
+            &r,
+            &HandEyeInputs {
+                eye_to_hand: a.eye_to_hand,
+                robot_poses: a.robot_poses.display().to_string(),
+                target_poses: a.target_poses.as_ref().map(|p| p.display().to_string()),
+                images: a.images.as_ref().map(|p| p.display().to_string()),
+            },
         );
+        println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         print_text(&r, &a, x_name, z_name);
     }
@@ -135,10 +141,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 fn board_poses_from_images(
     a: &Args,
     dir: &std::path::Path,
-    robot: &[depthcal::geometry::pose::PoseRecord],
-) -> anyhow::Result<Vec<depthcal::geometry::pose::PoseRecord>> {
+    robot: &[depthcal::io::poses::PoseRecord],
+) -> anyhow::Result<Vec<depthcal::io::poses::PoseRecord>> {
     use depthcal::camera::Intrinsics;
-    use depthcal::geometry::pose::{write_poses, PoseRecord};
+    use depthcal::io::poses::{write_poses, PoseRecord};
     use depthcal::vision::observe::{find_frame_images, observe_board, ObserveConfig};
     let board = a.board.board()?;
     let Some(ip) = &a.intrinsics else {
@@ -186,8 +192,8 @@ fn board_poses_from_images(
 fn board_poses_from_images(
     _a: &Args,
     _dir: &std::path::Path,
-    _robot: &[depthcal::geometry::pose::PoseRecord],
-) -> anyhow::Result<Vec<depthcal::geometry::pose::PoseRecord>> {
+    _robot: &[depthcal::io::poses::PoseRecord],
+) -> anyhow::Result<Vec<depthcal::io::poses::PoseRecord>> {
     anyhow::bail!(
         "depthcal handeye --images: {}",
         super::vision_args::WITHOUT_VISION
@@ -199,7 +205,7 @@ fn read_with_hint(
     path: &std::path::Path,
     format: PoseFormat,
     flag: &str,
-) -> anyhow::Result<Vec<depthcal::geometry::pose::PoseRecord>> {
+) -> anyhow::Result<Vec<depthcal::io::poses::PoseRecord>> {
     match read_poses(path, Some(format)) {
         Ok((_, r)) => Ok(r),
         Err(e) => {
@@ -216,127 +222,6 @@ fn read_with_hint(
             }
         }
     }
-}
-
-fn kuka_json(t: &Isometry3<f64>) -> serde_json::Value {
-    let k = KukaPose::from_isometry(t);
-    json!({"x_mm": k.x_mm, "y_mm": k.y_mm, "z_mm": k.z_mm, "a_deg": k.a_deg, "b_deg": k.b_deg, "c_deg": k.c_deg})
-}
-
-fn summary(r: &HandEyeResult) -> serde_json::Value {
-    let inl: Vec<_> = r.residuals.iter().filter(|f| !f.rejected).collect();
-    let mut rot: Vec<f64> = inl.iter().map(|f| f.rotation_deg).collect();
-    let mut tr: Vec<f64> = inl.iter().map(|f| f.translation_mm).collect();
-    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
-    let med = |v: &mut Vec<f64>| {
-        v.sort_by(|a, b| a.total_cmp(b));
-        if v.is_empty() {
-            0.0
-        } else {
-            v[v.len() / 2]
-        }
-    };
-    json!({
-        "frames": inl.len(),
-        "rotation_rms_deg": rms(&rot),
-        "rotation_max_deg": rot.iter().cloned().fold(0.0, f64::max),
-        "rotation_median_deg": med(&mut rot),
-        "translation_rms_mm": rms(&tr),
-        "translation_max_mm": tr.iter().cloned().fold(0.0, f64::max),
-        "translation_median_mm": med(&mut tr),
-    })
-}
-
-fn to_json(r: &HandEyeResult, a: &Args, x_name: &str, z_name: &str) -> serde_json::Value {
-    let mut o = serde_json::Map::new();
-    o.insert(x_name.into(), matrix4_json(&r.t_ee_cam));
-    o.insert(z_name.into(), matrix4_json(&r.t_base_board));
-    o.insert(format!("{x_name}_kuka"), kuka_json(&r.t_ee_cam));
-    o.insert(
-        format!("{x_name}_xyzquat"),
-        json!(isometry_to_xyzquat(&r.t_ee_cam)),
-    );
-    o.insert(format!("{z_name}_kuka"), kuka_json(&r.t_base_board));
-    o.insert(
-        "method".into(),
-        json!(if r.refined {
-            "refined".to_string()
-        } else {
-            r.method.name().to_string()
-        }),
-    );
-    o.insert("initial_method".into(), json!(r.method.name()));
-    o.insert("initial_from_lmeds".into(), json!(r.from_lmeds));
-    o.insert(
-        "setup".into(),
-        json!(if a.eye_to_hand {
-            "eye-to-hand"
-        } else {
-            "eye-in-hand"
-        }),
-    );
-    o.insert(
-        "robot_poses".into(),
-        json!(a.robot_poses.display().to_string()),
-    );
-    o.insert(
-        "target_poses".into(),
-        json!(a.target_poses.as_ref().map(|p| p.display().to_string())),
-    );
-    o.insert(
-        "images".into(),
-        json!(a.images.as_ref().map(|p| p.display().to_string())),
-    );
-    o.insert(
-        "residuals".into(),
-        serde_json::to_value(&r.residuals).unwrap_or_default(),
-    );
-    o.insert("residual_summary".into(), summary(r));
-    o.insert("rejected".into(), json!(r.rejected));
-    o.insert("warnings".into(), json!(r.warnings));
-    o.insert(
-        "closed_forms".into(),
-        json!(r
-            .closed_forms
-            .iter()
-            .map(|c| json!({
-                "method": c.method.name(),
-                x_name: c.t_ee_cam.as_ref().map(matrix4_json),
-                z_name: c.t_base_board.as_ref().map(matrix4_json),
-                "rotation_median_deg": c.rotation_median_deg,
-                "translation_median_mm": c.translation_median_mm,
-                "rotation_rms_deg": c.rotation_rms_deg,
-                "translation_rms_mm": c.translation_rms_mm,
-                "error": c.error,
-            }))
-            .collect::<Vec<_>>()),
-    );
-    o.insert(
-        "excitation".into(),
-        serde_json::to_value(&r.excitation).unwrap_or_default(),
-    );
-    o.insert(
-        format!("{z_name}_spread"),
-        json!({
-            "rotation_rms_deg": r.board.rotation_rms_deg,
-            "rotation_max_deg": r.board.rotation_max_deg,
-            "translation_rms_mm": r.board.translation_rms_mm,
-            "translation_max_mm": r.board.translation_max_mm,
-        }),
-    );
-    o.insert(
-        "sigma".into(),
-        json!({"rotation_deg": r.sigma_rotation_deg, "translation_mm": r.sigma_translation_mm}),
-    );
-    // The 1-σ of the estimate under the names a cell.toml robot entry uses: a cell whose `hand_eye` names
-    // this file takes them unless it states its own.
-    if let Some(s) = r.t_ee_cam_sigma {
-        o.insert("hand_eye_sigma_deg".into(), json!(s.rotation_deg));
-        o.insert("hand_eye_sigma_mm".into(), json!(s.translation_mm));
-    }
-    o.insert("iterations".into(), json!(r.iterations));
-    o.insert("converged".into(), json!(r.converged));
-    serde_json::Value::Object(o)
 }
 
 fn pose_text(name: &str, t: &Isometry3<f64>) -> String {
@@ -421,14 +306,14 @@ fn print_text(r: &HandEyeResult, a: &Args, x_name: &str, z_name: &str) {
             if f.rejected { "REJECTED" } else { "" }
         );
     }
-    let s = summary(r);
+    let s = ResidualSummary::of(&r.residuals);
     println!(
         "inliers: {} frames, rotation RMS {:.4}° median {:.4}°, translation RMS {:.3} mm median {:.3} mm",
-        s["frames"],
-        s["rotation_rms_deg"].as_f64().unwrap_or(0.0),
-        s["rotation_median_deg"].as_f64().unwrap_or(0.0),
-        s["translation_rms_mm"].as_f64().unwrap_or(0.0),
-        s["translation_median_mm"].as_f64().unwrap_or(0.0)
+        s.frames,
+        s.rotation_rms_deg,
+        s.rotation_median_deg,
+        s.translation_rms_mm,
+        s.translation_median_mm
     );
     println!();
     println!("closed forms (residuals over all frames):");

@@ -1,7 +1,7 @@
-//! Shared output helpers for the commands: JSON shapes of transforms and matrices, progress spinners.
+//! Shared output helpers for the commands: configuration files, matrices as text, progress spinners.
 
 use indicatif::{ProgressBar, ProgressStyle};
-use nalgebra::{Isometry3, Matrix6};
+use nalgebra::Isometry3;
 use std::time::Duration;
 
 /// Reads a JSON configuration file of type `T`, or the defaults when no file is given; errors name the
@@ -29,44 +29,6 @@ pub fn config_from_json<T: serde::de::DeserializeOwned + serde::Serialize + Defa
     text: &str,
 ) -> anyhow::Result<T> {
     Ok(depthcal::config_json::config_from_json(text)?)
-}
-
-/// An ambiguity (runner-up transform, score ratio, distance) as JSON; the translation under `key`, scaled by
-/// `scale` (e.g. `translation_mm`, 1e3 for a cell in metres).
-pub fn ambiguity_json(
-    a: &depthcal::registration::pipeline::Ambiguity,
-    key: &str,
-    scale: f64,
-) -> serde_json::Value {
-    let mut v = serde_json::json!({
-        "runner_up": matrix4_json(&a.runner_up),
-        "score_ratio": a.score_ratio,
-        "rotation_deg": a.rotation_deg,
-    });
-    v[key] = (a.translation * scale).into();
-    v
-}
-
-/// A 4x4 row-major nested array.
-pub fn matrix4_json(t: &Isometry3<f64>) -> serde_json::Value {
-    serde_json::json!(depthcal::geometry::transform::isometry_to_nested(t))
-}
-
-/// A 6x6 nested array.
-pub fn matrix6_json(m: &Matrix6<f64>) -> serde_json::Value {
-    let rows: Vec<Vec<f64>> = (0..6)
-        .map(|r| (0..6).map(|c| m[(r, c)]).collect())
-        .collect();
-    serde_json::json!(rows)
-}
-
-/// Stage timings as an ordered JSON object.
-pub fn timings_json(t: &[(String, f64)]) -> serde_json::Value {
-    let mut m = serde_json::Map::new();
-    for (k, v) in t {
-        m.insert(k.clone(), serde_json::json!((v * 1000.0).round() / 1000.0));
-    }
-    serde_json::Value::Object(m)
 }
 
 /// A spinner on stderr (drawn only when stderr is a terminal).

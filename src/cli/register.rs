@@ -1,13 +1,12 @@
 //! `depthcal register SOURCE TARGET`.
 
 use super::guard::{check_output_file, Inputs};
-use super::output::{
-    ambiguity_json, matrix4_json, matrix4_text, matrix6_json, spinner, timings_json,
-};
+use super::output::{matrix4_text, spinner};
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
 use depthcal::io::{read_cloud, read_matrix_file, write_cloud};
 use depthcal::registration::{register_with_progress, RegisterConfig};
+use depthcal::report::{RegistrationInputs, RegistrationReport};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -74,33 +73,14 @@ pub fn run(a: Args) -> Result<()> {
     let source = read_cloud(&a.source)?;
     let target = read_cloud(&a.target)?;
     let read_ms = t_read.elapsed().as_secs_f64() * 1e3;
-    let (es, et) = (source.extent(), target.extent());
-    if let Some(v) = cfg.voxel {
-        if v >= es.min(et) {
-            pb.finish_and_clear();
-            anyhow::bail!(
-                "voxel {v} exceeds the extent of the clouds (bounding-box diagonal: SOURCE {es:.6}, \
-                 TARGET {et:.6}, cloud units): every cloud would shrink to a few voxels; choose a voxel \
-                 well below the extent, or leave --voxel out to choose it from the data"
-            );
-        }
-    }
-    let units = scale_mismatch(es, et);
-    if let Some(u) = &units {
+    // The units warning now, before a registration that may take a while (the library adds it to the
+    // result's warnings too; it is not printed twice).
+    let early = depthcal::registration::extent::check_extents(&source, &target, cfg.voxel)?.units;
+    if let Some(u) = &early {
         pb.suspend(|| eprintln!("warning: {u}"));
     }
-    let big_voxel = cfg.voxel.filter(|v| *v > es.min(et) / 20.0).map(|v| {
-        format!(
-            "voxel {v} is a large fraction of the clouds' extent (bounding-box diagonal: SOURCE {es:.6}, \
-             TARGET {et:.6}): the downsampled clouds keep little geometry; try a smaller --voxel"
-        )
-    });
     let mut reg = register_with_progress(&source, &target, init.as_ref(), &cfg, &mut |stage| {
         pb.set_message(stage.to_string())
-    })
-    .map_err(|e| match units.as_ref().or(big_voxel.as_ref()) {
-        Some(u) => anyhow::Error::new(e).context(u.clone()),
-        None => anyhow::Error::new(e),
     })
     .with_context(|| {
         format!(
@@ -109,13 +89,6 @@ pub fn run(a: Args) -> Result<()> {
             a.target.display()
         )
     })?;
-    let early_warning = units.clone();
-    if let Some(u) = units {
-        if !reg.trust.trusted {
-            reg.trust.reasons.push(u.clone());
-        }
-        reg.warnings.push(u);
-    }
     reg.timings_ms.insert(0, ("read".into(), read_ms));
     if let Some(out) = a.output.as_ref().filter(|_| reg.trust.trusted) {
         pb.set_message("writing");
@@ -127,11 +100,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     pb.finish_and_clear();
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
-    for w in reg
-        .warnings
-        .iter()
-        .filter(|w| Some(*w) != early_warning.as_ref())
-    {
+    for w in reg.warnings.iter().filter(|w| Some(*w) != early.as_ref()) {
         eprintln!("warning: {w}");
     }
     if let (Some(out), false) = (&a.output, reg.trust.trusted) {
@@ -142,46 +111,18 @@ pub fn run(a: Args) -> Result<()> {
     }
     let error = truth.map(|t| depthcal::geometry::transform::pose_error(&reg.transform, &t));
     if a.json {
-        let g = reg.global.as_ref().map(|g| {
-            serde_json::json!({
-                "correspondences": g.correspondences,
-                "inliers": g.inliers,
-                "iterations": g.iterations,
-                "fitness": g.fitness,
-                "transform": matrix4_json(&g.transform),
-            })
-        });
-        let v = serde_json::json!({
-            "source": a.source,
-            "target": a.target,
-            "transform": matrix4_json(&reg.transform),
-            "fitness": reg.fitness,
-            "inlier_rmse": reg.inlier_rmse,
-            "overlap": reg.overlap,
-            "converged": reg.converged,
-            "iterations": reg.iterations,
-            "covariance": matrix6_json(&reg.covariance),
-            "information": matrix6_json(&reg.information),
-            "covariance_parameters": "[rx, ry, rz (rad), tx, ty, tz (cloud units)], left increment about the target origin",
-            "degenerate": reg.degeneracy.is_degenerate(),
-            "degeneracy": reg.degeneracy,
-            "voxel": reg.voxel,
-            "spacing": reg.spacing,
-            "points": {"source": source.len(), "target": target.len(),
-                       "source_downsampled": reg.global_points[0], "target_downsampled": reg.global_points[1]},
-            "global": g,
-            "seed": a.seed,
-            "warnings": reg.warnings,
-            "trusted": reg.trust.trusted,
-            "reasons": reg.trust.reasons,
-            "suggestions": reg.trust.suggestions,
-            "surface_agreement": reg.surface_agreement,
-            "ambiguity": reg.ambiguity.as_ref().map(|x| ambiguity_json(x, "translation", 1.0)),
-            "error_vs_truth": error.map(|(r, t)| serde_json::json!({"rotation_deg": r, "translation": t})),
-            "timings_ms": timings_json(&reg.timings_ms),
-            "total_ms": total_ms,
-        });
-        println!("{}", serde_json::to_string_pretty(&v)?);
+        let report = RegistrationReport::new(
+            &reg,
+            &RegistrationInputs {
+                source: Some(a.source.display().to_string()),
+                target: Some(a.target.display().to_string()),
+                points: [source.len(), target.len()],
+                seed: a.seed,
+                truth,
+                total_ms,
+            },
+        );
+        println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         println!("{} -> {}", a.source.display(), a.target.display());
         println!(
@@ -244,23 +185,4 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     super::gate(&reg.trust)
-}
-
-/// The warning when two clouds' extents differ by more than 20x: most likely one is in millimetres and the
-/// other in metres.
-pub fn scale_mismatch(source_extent: f64, target_extent: f64) -> Option<String> {
-    let (lo, hi) = if source_extent < target_extent {
-        (source_extent, target_extent)
-    } else {
-        (target_extent, source_extent)
-    };
-    if lo.is_nan() || lo <= 0.0 || hi / lo <= 20.0 {
-        return None;
-    }
-    Some(format!(
-        "the extents of SOURCE ({source_extent:.6}) and TARGET ({target_extent:.6}) differ {:.0}x \
-         (bounding-box diagonals, cloud units): are they in different units (millimetres vs metres)? \
-         Registration is rigid and does not change scale; convert one cloud first",
-        hi / lo
-    ))
 }

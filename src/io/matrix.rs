@@ -31,7 +31,7 @@ fn parse_matrix_text(text: &str) -> std::result::Result<[f64; 16], String> {
         let t = v
             .get("transform")
             .ok_or("JSON object has no `transform` field")?;
-        flatten_json(t)?
+        return matrix_from_json(t).map_err(|m| format!("`transform`: {m}"));
     } else {
         let mut out = Vec::new();
         for (lineno, line) in text.lines().enumerate() {
@@ -65,6 +65,39 @@ fn parse_matrix_text(text: &str) -> std::result::Result<[f64; 16], String> {
     Ok(m)
 }
 
+/// The 4x4 row-major matrix of a JSON value: 16 numbers, 4 rows of 4 numbers, or a pose object of the
+/// reports (`{"matrix": [[...]], ...}`).
+pub fn matrix_from_json(v: &serde_json::Value) -> std::result::Result<[f64; 16], String> {
+    let numbers = match v {
+        serde_json::Value::Object(o) => match o.get("matrix") {
+            Some(m) => return matrix_from_json(m),
+            None => return Err("expected a 4x4 matrix or an object with a `matrix` field".into()),
+        },
+        serde_json::Value::Array(a) if a.len() == 4 && a.iter().all(|r| r.is_array()) => {
+            let mut out = Vec::with_capacity(16);
+            for row in a {
+                let r = row.as_array().filter(|r| r.len() == 4);
+                let r = r.ok_or("each of the 4 rows must hold 4 numbers")?;
+                out.extend(flatten_json(&serde_json::Value::Array(r.clone()))?);
+            }
+            out
+        }
+        serde_json::Value::Array(_) => flatten_json(v)?,
+        _ => {
+            return Err("expected a 4x4 matrix: 16 numbers row-major or 4 rows of 4 numbers".into())
+        }
+    };
+    if numbers.len() != 16 {
+        return Err(format!(
+            "expected 16 numbers (a 4x4 row-major matrix), found {}",
+            numbers.len()
+        ));
+    }
+    let mut m = [0.0; 16];
+    m.copy_from_slice(&numbers);
+    Ok(m)
+}
+
 fn flatten_json(v: &serde_json::Value) -> std::result::Result<Vec<f64>, String> {
     match v {
         serde_json::Value::Array(items) => {
@@ -78,7 +111,7 @@ fn flatten_json(v: &serde_json::Value) -> std::result::Result<Vec<f64>, String> 
             .as_f64()
             .map(|x| vec![x])
             .ok_or_else(|| "bad number".to_string()),
-        other => Err(format!("`transform` holds a non-number: {other}")),
+        other => Err(format!("a non-number: {other}")),
     }
 }
 

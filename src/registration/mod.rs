@@ -1,6 +1,7 @@
 //! Registration: correspondences, RANSAC, trimmed robust ICP, and the `register` pipeline.
 
 pub mod correspondence;
+pub mod extent;
 pub mod icp;
 pub mod kernel;
 pub mod ransac;

@@ -1,6 +1,7 @@
 //! The `register` pipeline: automatic scale → voxel pyramid → normals → FPFH → matching → RANSAC →
 //! coarse-to-fine trimmed robust ICP → quality. Each stage is timed.
 
+use super::extent::check_extents;
 use crate::error::{Error, Result};
 use crate::features::{compute_fpfh, Fpfh, FpfhConfig};
 use crate::geometry::cloud::to_v64;
@@ -352,6 +353,10 @@ pub fn register(
 }
 
 /// As [`register`], calling `progress` with the name of each stage as it starts.
+///
+/// First checks the clouds' extents ([`check_extents`]): a voxel at least as large as a cloud is an error;
+/// clouds whose extents differ more than 20x (millimetres vs metres) give a warning, a reason when the
+/// result is not trusted, and the context of an error.
 pub fn register_with_progress(
     source: &PointCloud,
     target: &PointCloud,
@@ -359,7 +364,22 @@ pub fn register_with_progress(
     cfg: &RegisterConfig,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Registration> {
-    register_with_prior(source, target, init, cfg, progress, None)
+    let notes = check_extents(source, target, cfg.voxel)?;
+    let context = notes.units.as_ref().or(notes.big_voxel.as_ref());
+    let mut reg =
+        register_with_prior(source, target, init, cfg, progress, None).map_err(
+            |e| match context {
+                Some(c) => Error::InvalidInput(format!("{c}: {e}")),
+                None => e,
+            },
+        )?;
+    if let Some(u) = notes.units {
+        if !reg.trust.trusted {
+            reg.trust.reasons.push(u.clone());
+        }
+        reg.warnings.push(u);
+    }
+    Ok(reg)
 }
 
 /// As [`register_with_progress`], with a [`HypothesisPrior`] weighing the global stage's hypotheses: it

@@ -57,11 +57,7 @@ pub fn reprojection_errors_of(
 
 /// RMS and largest value of a list of pixel errors.
 pub(crate) fn rms_max(e: &[f64]) -> (f64, f64) {
-    let n = e.len().max(1) as f64;
-    (
-        (e.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
-        e.iter().cloned().fold(0.0, f64::max),
-    )
+    (crate::stats::rms(e), crate::stats::max_or_zero(e))
 }
 
 /// Solves for `T_cam_board` from the board's inner corners (in [`Checkerboard`] order, pixels).

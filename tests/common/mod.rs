@@ -140,3 +140,45 @@ pub fn write_kuka_pose_file(
     std::fs::write(path, s).unwrap();
 }
 pub mod foreign;
+
+/// Checks that every top-level field of a report `v` is listed in docs/json.md's section of its schema
+/// (the `schema` field), and that the section lists no field the report lacks.
+pub fn assert_documented(v: &serde_json::Value) {
+    let schema = v["schema"].as_str().expect("a report names its schema");
+    let doc =
+        std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("docs/json.md"))
+            .unwrap();
+    let head = format!("## `{schema}`");
+    let start = doc
+        .find(&head)
+        .unwrap_or_else(|| panic!("docs/json.md has no {head}"));
+    let section = &doc[start + head.len()..];
+    let section = &section[..section.find("\n## ").unwrap_or(section.len())];
+    let fields: std::collections::BTreeSet<String> = v
+        .as_object()
+        .expect("a JSON object")
+        .keys()
+        .cloned()
+        .collect();
+    let mut listed = std::collections::BTreeSet::new();
+    for line in section.lines().filter(|l| l.starts_with("| `")) {
+        let first = line.split('|').nth(1).unwrap_or("");
+        let names: Vec<String> = first
+            .split('`')
+            .skip(1)
+            .step_by(2)
+            .map(String::from)
+            .collect();
+        // A row whose fields are all missing must say when they are absent.
+        assert!(
+            names.iter().any(|n| fields.contains(n)) || line.contains("absent"),
+            "{schema}: docs/json.md lists fields the report lacks: {names:?}"
+        );
+        listed.extend(names);
+    }
+    let undocumented: Vec<_> = fields.difference(&listed).collect();
+    assert!(
+        undocumented.is_empty(),
+        "{schema}: not in docs/json.md: {undocumented:?}"
+    );
+}

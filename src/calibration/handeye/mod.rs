@@ -40,8 +40,8 @@ use crate::calibration::average::{
     average_poses, rotation_angle_between, AverageConfig, PoseAverage,
 };
 use crate::error::{Error, Result};
-use crate::geometry::pose::PoseRecord;
 use crate::geometry::Rng;
+use crate::io::poses::PoseRecord;
 use nalgebra::{Isometry3, Matrix3, UnitQuaternion, Vector3};
 use refine::{frame_error, Kernel};
 use serde::{Deserialize, Serialize};
@@ -399,26 +399,7 @@ pub fn board_for(frames: &[HandEyeFrame], x: &Isometry3<f64>) -> Result<Isometry
     Ok(average_poses(&poses, None, &AverageConfig::default())?.mean)
 }
 
-fn median(v: &[f64]) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    let mut s = v.to_vec();
-    s.sort_by(|a, b| a.total_cmp(b));
-    let n = s.len();
-    if n % 2 == 1 {
-        s[n / 2]
-    } else {
-        0.5 * (s[n / 2 - 1] + s[n / 2])
-    }
-}
-
-fn rms(v: &[f64]) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt()
-}
+use crate::stats::{median, rms};
 
 /// Checks the frames before solving: count, finite values, plausible translations.
 pub fn validate_frames(frames: &[HandEyeFrame], config: &HandEyeConfig) -> Result<()> {

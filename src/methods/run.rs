@@ -1,0 +1,183 @@
+//! Calibrating a cell with a named method, and comparing every method the cell allows: what `depthcal
+//! calibrate` and `depthcal compare` (and the Python package) run.
+
+use super::{available, build, Method, MethodInputs};
+use crate::calibration::robot_to_robot::{
+    calibrate_keeping_clouds, fuse_cell, initialize_only_keeping_clouds, refine_cell,
+    CalibrateConfig, Calibration, FusedCell,
+};
+use crate::cell::Cell;
+use crate::error::Result;
+use crate::geometry::transform::pose_error;
+use nalgebra::Isometry3;
+use std::time::Instant;
+
+/// Calibrates `cell` with `method`: builds its initialiser (image methods find their targets here, timed
+/// as the first stage), then refines with trimmed robust ICP unless `refine` is off. The initialiser's
+/// warnings come first in the result's warnings. Returns the fused clouds too (empty when not needed).
+pub fn calibrate_with_method(
+    cell: &Cell,
+    method: Method,
+    inputs: &MethodInputs,
+    cfg: &CalibrateConfig,
+    refine: bool,
+    progress: &mut dyn FnMut(&str),
+) -> Result<(Calibration, FusedCell)> {
+    let (init, found_ms, warnings) = build(method, cell, inputs, cfg)?;
+    let (mut c, fused) = if refine {
+        calibrate_keeping_clouds(cell, init.as_ref(), cfg, progress)?
+    } else {
+        initialize_only_keeping_clouds(cell, init.as_ref(), cfg, progress)?
+    };
+    if found_ms > 0.0 {
+        // The image targets are found before the clouds are fused.
+        let key = match method {
+            Method::Checkerboard => "board_poses",
+            Method::Marker => "marker_poses",
+            _ => "keypoints",
+        };
+        c.timings_ms.insert(0, (key.into(), found_ms));
+    }
+    c.warnings.splice(0..0, warnings);
+    Ok((c, fused))
+}
+
+/// One method's outcome in a [`Comparison`].
+#[derive(Clone, Debug)]
+pub enum MethodOutcome {
+    /// It ran: the calibration and its wall time (milliseconds).
+    Ran(Box<Calibration>, f64),
+    /// The cell's data does not allow it: why.
+    Skipped(String),
+    /// It failed: the error.
+    Failed(String),
+}
+
+/// One row of a [`Comparison`].
+#[derive(Clone, Debug)]
+pub struct MethodRow {
+    /// The method.
+    pub method: Method,
+    /// What came of it.
+    pub outcome: MethodOutcome,
+    /// The largest difference of its result from the other methods' results: (degrees, metres).
+    pub disagreement: Option<(f64, f64)>,
+}
+
+/// Every method a cell allows, run on one fusion of the clouds.
+#[derive(Clone, Debug)]
+pub struct Comparison {
+    /// The methods in order.
+    pub rows: Vec<MethodRow>,
+    /// The methods were refined with ICP.
+    pub refined: bool,
+    /// Wall time of the one fusion, milliseconds.
+    pub fuse_ms: f64,
+    /// The cell has a ground truth.
+    pub has_truth: bool,
+}
+
+impl Comparison {
+    /// A trusted result came out of some method.
+    pub fn any_trusted(&self) -> bool {
+        self.ran().any(|c| c.trust.trusted)
+    }
+
+    /// The calibrations of the methods that ran.
+    pub fn ran(&self) -> impl Iterator<Item = &Calibration> {
+        self.rows.iter().filter_map(|r| match &r.outcome {
+            MethodOutcome::Ran(c, _) => Some(c.as_ref()),
+            _ => None,
+        })
+    }
+}
+
+/// Runs every method the cell's data allows ([`available`]), or only `only` when given (then a method
+/// whose table is missing runs and reports its error instead of being skipped). The clouds are fused once.
+/// `Method::Guess` needs an input file and is not part of a comparison.
+pub fn compare_methods(
+    cell: &Cell,
+    only: &[Method],
+    cfg: &CalibrateConfig,
+    refine: bool,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Comparison> {
+    if only.contains(&Method::Guess) {
+        return Err(crate::Error::InvalidInput(
+            "compare runs the methods that need no input file; guess is not one".into(),
+        ));
+    }
+    let mut plan = available(cell);
+    if !only.is_empty() {
+        plan.retain(|(m, _)| only.contains(m));
+        for (_, reason) in plan.iter_mut() {
+            if reason.as_deref().is_some_and(|r| r.starts_with("no [")) {
+                *reason = None;
+            }
+        }
+    }
+    let needs_fusion = refine || plan.iter().any(|(m, r)| *m == Method::Depth && r.is_none());
+    let fused = if needs_fusion {
+        progress("fusing both robots' frames");
+        fuse_cell(cell, cfg)?
+    } else {
+        FusedCell::without_clouds(cell, cfg)?
+    };
+    let mut rows = Vec::new();
+    for (method, reason) in plan {
+        if let Some(r) = reason {
+            rows.push((method, MethodOutcome::Skipped(r)));
+            continue;
+        }
+        progress(&format!("running {}", method.name()));
+        let t0 = Instant::now();
+        let outcome =
+            build(method, cell, &MethodInputs::default(), cfg).and_then(|(init, _, _)| {
+                refine_cell(cell, &fused, init.as_ref(), cfg, refine, &mut |_| {})
+            });
+        let ms = t0.elapsed().as_secs_f64() * 1e3;
+        rows.push((
+            method,
+            match outcome {
+                Ok(c) => MethodOutcome::Ran(Box::new(c), ms),
+                Err(e) => MethodOutcome::Failed(e.to_string()),
+            },
+        ));
+    }
+    let results: Vec<(Method, Isometry3<f64>)> = rows
+        .iter()
+        .filter_map(|(m, o)| match o {
+            MethodOutcome::Ran(c, _) => Some((*m, c.transform)),
+            _ => None,
+        })
+        .collect();
+    let disagreement = |m: Method, t: &Isometry3<f64>| -> Option<(f64, f64)> {
+        results
+            .iter()
+            .filter(|(o, _)| *o != m)
+            .map(|(_, u)| pose_error(t, u))
+            .fold(None, |acc: Option<(f64, f64)>, (r, tr)| {
+                Some(acc.map_or((r, tr), |(ar, at)| (ar.max(r), at.max(tr))))
+            })
+    };
+    let rows = rows
+        .into_iter()
+        .map(|(method, outcome)| {
+            let d = match &outcome {
+                MethodOutcome::Ran(c, _) => disagreement(method, &c.transform),
+                _ => None,
+            };
+            MethodRow {
+                method,
+                outcome,
+                disagreement: d,
+            }
+        })
+        .collect();
+    Ok(Comparison {
+        rows,
+        refined: refine,
+        fuse_ms: fused.fuse_ms,
+        has_truth: cell.ground_truth()?.and_then(|g| g.t_base1_base2).is_some(),
+    })
+}
