@@ -2,17 +2,17 @@
 
 use crate::convert;
 use crate::errors::{input_err, lib_err, untrusted_err};
-use crate::{pool, report};
-use depthcal::calibration::board_init::checkerboard_initializer;
-use depthcal::calibration::feature_init::feature_initializer;
-use depthcal::calibration::initializer::{GlobalRegistration, Initializer, UserGuess};
-use depthcal::calibration::marker_init::marker_initializer;
+use crate::pool;
+use crate::register::to_json;
+use depthcal::calibration::initializer::UserGuess;
 use depthcal::calibration::robot_to_robot::{
     calibrate_keeping_clouds, initialize_only_keeping_clouds, robot_pair, CalibrateConfig,
     Calibration,
 };
 use depthcal::cell::Cell;
-use depthcal::geometry::robot_formats::{transform_files, Frames};
+use depthcal::geometry::robot_formats::{ros2_static_tf_command, transform_files, Frames};
+use depthcal::methods::{calibrate_with_method, Method, MethodInputs};
+use depthcal::report::CalibrationReport;
 use numpy::{PyArray1, PyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -128,7 +128,7 @@ impl PyCalibration {
     /// The ROS 2 ``static_transform_publisher`` command line for the result.
     #[getter]
     fn ros2(&self) -> String {
-        report::ros2_command(&self.c.transform, &self.frames.parent, &self.frames.child)
+        ros2_static_tf_command(&self.c.transform, &self.frames)
     }
     /// ``(parent, child)`` frame ids of the ROS outputs.
     #[getter]
@@ -200,53 +200,6 @@ fn frames(
     }
 }
 
-/// The initialiser of `method` (as `depthcal calibrate --method`), and warnings.
-fn build(
-    method: &str,
-    cell: &Cell,
-    init: Option<UserGuess>,
-    board_poses: &[(String, PathBuf)],
-    cfg: &CalibrateConfig,
-) -> PyResult<(Box<dyn Initializer + Send + Sync>, f64, Vec<String>)> {
-    let t0 = Instant::now();
-    let ms = |t: Instant| t.elapsed().as_secs_f64() * 1e3;
-    Ok(match method {
-        "guess" => {
-            let Some(g) = init else {
-                return Err(input_err(
-                    "method \"guess\" needs init= (a 4x4 matrix or a file)",
-                ));
-            };
-            (Box::new(g), 0.0, Vec::new())
-        }
-        "depth" => (
-            Box::new(GlobalRegistration {
-                config: cfg.register.clone(),
-                ..GlobalRegistration::default()
-            }),
-            0.0,
-            Vec::new(),
-        ),
-        "checkerboard" => {
-            let (i, w) = checkerboard_initializer(cell, board_poses).map_err(lib_err)?;
-            (Box::new(i), ms(t0), w)
-        }
-        "marker" => {
-            let (i, w) = marker_initializer(cell, &cfg.marker).map_err(lib_err)?;
-            (Box::new(i), ms(t0), w)
-        }
-        "features" => {
-            let (i, w) = feature_initializer(cell, &cfg.features).map_err(lib_err)?;
-            (Box::new(i), ms(t0), w)
-        }
-        other => {
-            return Err(input_err(format!(
-                "method {other:?}: expected depth, guess, checkerboard, marker or features"
-            )))
-        }
-    })
-}
-
 /// Calibrates a cell: finds ``T_base1_base2``, the pose of the other robot's base in the reference
 /// robot's base, as ``depthcal calibrate CELL_DIR`` does (fuse each robot's frames in its base frame,
 /// initialise, refine with trimmed robust ICP, check and report).
@@ -254,8 +207,8 @@ fn build(
 /// Args:
 ///     cell_dir: the cell dataset directory (with ``cell.toml``).
 ///     method: the initialiser: ``depth`` (FPFH + RANSAC under the cell's priors), ``guess`` (from
-///         ``init``), ``checkerboard`` (with ``board_poses``), ``marker`` / ``features`` (need a depthcal
-///         built with OpenCV, not this package).
+///         ``init``), ``checkerboard`` (with ``board_poses``; finding boards in images, ``marker`` and
+///         ``features`` need a depthcal built with OpenCV, which this package is not).
 ///     init: an initial ``T_base1_base2`` (4x4, metres, or the path of a matrix file or an earlier JSON
 ///         result); implies ``method="guess"``.
 ///     seed: seed of every randomised step; results are bit-identical for a seed at any thread count.
@@ -298,50 +251,47 @@ pub fn calibrate(
     cfg.seed = seed;
     cfg.use_priors = priors;
     cfg.validate().map_err(lib_err)?;
-    let guess = match init.filter(|i| !i.is_none()) {
-        None => None,
-        Some(i) => Some(match convert::path_like(i) {
-            Some(p) => UserGuess {
-                transform: depthcal::io::read_matrix_file(&p).map_err(lib_err)?,
-                source: p.display().to_string(),
-            },
-            None => UserGuess {
-                transform: convert::isometry(i, "init")?,
-                source: "init".into(),
-            },
-        }),
+    // A path is the CLI's `--init FILE`; an array is a guess named "init".
+    let (init_file, init_array) = match init.filter(|i| !i.is_none()) {
+        None => (None, None),
+        Some(i) => match convert::path_like(i) {
+            Some(p) => (Some(p), None),
+            None => (None, Some(convert::isometry(i, "init")?)),
+        },
     };
-    let method = if guess.is_some() { "guess" } else { method };
-    let board_poses: Vec<(String, PathBuf)> = board_poses.unwrap_or_default().into_iter().collect();
-    if !board_poses.is_empty() && method != "checkerboard" {
+    let method = if init_file.is_some() || init_array.is_some() {
+        Method::Guess
+    } else {
+        Method::from_name(method).map_err(lib_err)?
+    };
+    let board_pose: Vec<(String, PathBuf)> = board_poses.unwrap_or_default().into_iter().collect();
+    if !board_pose.is_empty() && method != Method::Checkerboard {
         return Err(input_err("board_poses is for method=\"checkerboard\""));
     }
     let cell_name = dir.display().to_string();
     let cell = py.detach(|| Cell::open(&dir)).map_err(lib_err)?;
     cell.ground_truth().map_err(lib_err)?;
     let frames = frames(&cell, frame_id, child_frame_id).map_err(lib_err)?;
-    let (initializer, found_ms, setup_warnings) = build(method, &cell, guess, &board_poses, &cfg)?;
-    // The command line prints these on stderr (they are not part of its JSON): Python warnings here.
-    for w in &setup_warnings {
-        crate::errors::warn(py, w)?;
-    }
-    let outcome = pool::run(py, threads, move || {
-        if refine {
-            calibrate_keeping_clouds(&cell, initializer.as_ref(), &cfg, &mut |_| {})
-        } else {
-            initialize_only_keeping_clouds(&cell, initializer.as_ref(), &cfg, &mut |_| {})
+    let inputs = MethodInputs {
+        init: init_file,
+        board_pose,
+    };
+    let outcome = pool::run(py, threads, move || match init_array {
+        Some(transform) => {
+            let guess = UserGuess {
+                transform,
+                source: "init".into(),
+            };
+            if refine {
+                calibrate_keeping_clouds(&cell, &guess, &cfg, &mut |_| {})
+            } else {
+                initialize_only_keeping_clouds(&cell, &guess, &cfg, &mut |_| {})
+            }
         }
+        None => calibrate_with_method(&cell, method, &inputs, &cfg, refine, &mut |_| {}),
     })?;
-    let (mut c, _fused) = outcome.map_err(lib_err)?;
-    if found_ms > 0.0 {
-        let key = match method {
-            "checkerboard" => "board_poses",
-            "marker" => "marker_poses",
-            _ => "keypoints",
-        };
-        c.timings_ms.insert(0, (key.into(), found_ms));
-    }
+    let (c, _fused) = outcome.map_err(lib_err)?;
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
-    let report = report::calibration(&c, &cell_name, &frames.parent, &frames.child, total_ms);
+    let report = to_json(&CalibrationReport::new(&c, &cell_name, &frames, total_ms))?;
     Ok(PyCalibration { c, frames, report })
 }

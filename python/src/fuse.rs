@@ -31,7 +31,7 @@ const FEW_FUSED_POINTS: usize = 1000;
 ///     ``(cloud, stats)``: a :class:`PointCloud` (float32 points in the base frame, metres; normals) and
 ///     a dict (``robot``, ``frames``, ``points_in``, ``points_cropped``, ``voxel_size_m``, ``voxels``,
 ///     ``sparse_removed``, ``outliers_removed``, ``points``, ``normals``, ``seconds``: the JSON of
-///     ``depthcal fuse --json`` without ``output``).
+///     ``depthcal fuse --json``, with ``output`` None).
 #[pyfunction]
 #[pyo3(signature = (cell_dir, robot=None, *, voxel=None, min_depth=0.1, max_depth=10.0, crop=None, outlier_removal=true, normals=true, threads=None))]
 #[allow(clippy::too_many_arguments)]
@@ -102,19 +102,9 @@ pub fn fuse<'py>(
             ),
         )?;
     }
-    let stats = serde_json::json!({
-        "robot": name,
-        "frames": s.frames,
-        "points_in": s.points_in,
-        "points_cropped": s.points_cropped,
-        "voxel_size_m": s.voxel_size_m,
-        "voxels": s.voxels,
-        "sparse_removed": s.sparse_removed,
-        "outliers_removed": s.outliers_removed,
-        "points": s.points_out,
-        "normals": fused.cloud.normals.is_some(),
-        "seconds": start.elapsed().as_secs_f64(),
-    });
+    let report =
+        depthcal::report::FusionReport::new(&fused, &name, None, start.elapsed().as_secs_f64());
+    let stats = crate::register::to_json(&report)?;
     Ok((
         PyPointCloud::from_cloud(py, &fused.cloud),
         convert::json_to_py(py, &stats)?,

@@ -2,8 +2,9 @@
 
 use crate::convert;
 use crate::errors::{input_err, lib_err};
+use crate::pool;
 use crate::poses::{format, frame_ids_or_default};
-use crate::{pool, report};
+use crate::register::to_json;
 use depthcal::calibration::handeye::{
     calibrate_hand_eye, frames_from_records, HandEyeConfig, HandEyeFrame, HandEyeMethod,
     HandEyeResult,
@@ -158,8 +159,8 @@ pub fn handeye(
             }
             let rf = format(robot_format)?;
             let tf = format(target_format)?;
-            let (_, robot) = depthcal::geometry::pose::read_poses(r, Some(rf)).map_err(lib_err)?;
-            let (_, target) = depthcal::geometry::pose::read_poses(t, Some(tf)).map_err(lib_err)?;
+            let (_, robot) = depthcal::io::poses::read_poses(r, Some(rf)).map_err(lib_err)?;
+            let (_, target) = depthcal::io::poses::read_poses(t, Some(tf)).map_err(lib_err)?;
             frames_from_records(&robot, r, &target, t).map_err(lib_err)?
         }
         (None, None) => {
@@ -194,13 +195,19 @@ pub fn handeye(
         }
     }
     let r = pool::run(py, threads, move || calibrate_hand_eye(&frames, &cfg))?.map_err(lib_err)?;
-    let report = report::hand_eye(
+    let report = to_json(&depthcal::report::HandEyeReport::new(
         &r,
-        &report::HandEyeInputs {
-            robot_poses: rp.map(|p| p.display().to_string()),
-            target_poses: tp.map(|p| p.display().to_string()),
+        &depthcal::report::HandEyeInputs {
             eye_to_hand,
+            robot_poses: rp
+                .map(|p| p.display().to_string())
+                .unwrap_or_else(|| "<array>".into()),
+            target_poses: Some(
+                tp.map(|p| p.display().to_string())
+                    .unwrap_or_else(|| "<array>".into()),
+            ),
+            images: None,
         },
-    );
+    ))?;
     Ok(PyHandEye { r, report })
 }

@@ -16,7 +16,6 @@ mod handeye;
 mod pool;
 mod poses;
 mod register;
-mod report;
 mod simulate;
 
 /// depthcal's compiled core (use the package ``depthcal``, which re-exports it).

@@ -4,11 +4,13 @@
 use crate::convert;
 use crate::errors::{input_err, lib_err};
 use depthcal::geometry::pose::{
-    isometry_to_abb, isometry_to_fanuc, isometry_to_ur, isometry_to_xyzquat, KukaPose, PoseFormat,
-    PoseRecord,
+    isometry_to_abb, isometry_to_fanuc, isometry_to_ur, isometry_to_xyzquat, KukaPose,
 };
-use depthcal::geometry::robot_formats::{transform_files as lib_transform_files, Frames};
+use depthcal::geometry::robot_formats::{
+    ros2_static_tf_command, transform_files as lib_transform_files, Frames,
+};
 use depthcal::geometry::transform::isometry_to_rows;
+use depthcal::io::poses::{PoseFormat, PoseRecord};
 use nalgebra::Isometry3;
 use numpy::{PyArray1, PyArray2};
 use pyo3::prelude::*;
@@ -111,7 +113,7 @@ pub fn read_poses<'py>(
 ) -> PyResult<(Vec<String>, Bound<'py, PyAny>)> {
     let p = convert::path(path, "path")?;
     let f = format.map(self::format).transpose()?;
-    let (_, records) = depthcal::geometry::pose::read_poses(&p, f).map_err(lib_err)?;
+    let (_, records) = depthcal::io::poses::read_poses(&p, f).map_err(lib_err)?;
     let ids = records.iter().map(|r| r.frame.clone()).collect();
     let poses: Vec<Isometry3<f64>> = records.iter().map(|r| r.pose).collect();
     Ok((ids, convert::matrix4_stack(py, &poses).into_any()))
@@ -140,7 +142,7 @@ pub fn write_poses(
             line: 0,
         })
         .collect();
-    depthcal::geometry::pose::write_poses(&p, &records, f).map_err(lib_err)
+    depthcal::io::poses::write_poses(&p, &records, f).map_err(lib_err)
 }
 
 /// The frame ids given (one per pose, non-empty, unique) or "0", "1", ...
@@ -181,8 +183,8 @@ pub fn ros2_static_transform(
     child: &str,
 ) -> PyResult<String> {
     let t = convert::isometry(transform, "transform")?;
-    Frames::new(parent, child).map_err(lib_err)?;
-    Ok(crate::report::ros2_command(&t, parent, child))
+    let f = Frames::new(parent, child).map_err(lib_err)?;
+    Ok(ros2_static_tf_command(&t, &f))
 }
 
 /// The files ``depthcal calibrate --output DIR`` writes for robots and ROS, as a dict of file name to

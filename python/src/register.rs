@@ -4,7 +4,6 @@ use crate::cloud::cloud_from_py;
 use crate::convert;
 use crate::errors::{lib_err, new_err, untrusted_err, Kind};
 use crate::pool;
-use crate::report;
 use depthcal::registration::RegisterConfig;
 use numpy::{PyArray1, PyArray2};
 use pyo3::prelude::*;
@@ -145,24 +144,6 @@ impl PyRegistration {
     }
 }
 
-/// The warning when two clouds' extents differ by more than 20x (as `depthcal register` gives it).
-fn scale_mismatch(source_extent: f64, target_extent: f64) -> Option<String> {
-    let (lo, hi) = if source_extent < target_extent {
-        (source_extent, target_extent)
-    } else {
-        (target_extent, source_extent)
-    };
-    if lo.is_nan() || lo <= 0.0 || hi / lo <= 20.0 {
-        return None;
-    }
-    Some(format!(
-        "the extents of SOURCE ({source_extent:.6}) and TARGET ({target_extent:.6}) differ {:.0}x \
-         (bounding-box diagonals, cloud units): are they in different units (millimetres vs metres)? \
-         Registration is rigid and does not change scale; convert one cloud first",
-        hi / lo
-    ))
-}
-
 /// A cloud argument: a path (read with `read_cloud`, NaN points then dropped by the pipeline with a
 /// warning, as the command line does), or points.
 enum CloudArg {
@@ -255,56 +236,29 @@ pub fn register(
         let source = load(src_arg)?;
         let target = load(tgt_arg)?;
         let read_ms = t_read.elapsed().as_secs_f64() * 1e3;
-        let (es, et) = (source.extent(), target.extent());
-        if let Some(v) = cfg.voxel {
-            if v >= es.min(et) {
-                return Err(depthcal::Error::Config {
-                    field: "voxel".into(),
-                    msg: format!(
-                        "voxel {v} exceeds the extent of the clouds (bounding-box diagonal: SOURCE {es:.6}, \
-                         TARGET {et:.6}, cloud units): every cloud would shrink to a few voxels; choose a \
-                         voxel well below the extent, or leave voxel out to choose it from the data"
-                    ),
-                });
-            }
-        }
-        let units = scale_mismatch(es, et);
-        let mut reg = depthcal::registration::register(&source, &target, init.as_ref(), &cfg)
-            .map_err(|e| match &units {
-                Some(u) => with_context(e, u),
-                None => e,
-            })?;
-        if let Some(u) = units {
-            if !reg.trust.trusted {
-                reg.trust.reasons.push(u.clone());
-            }
-            reg.warnings.push(u);
-        }
+        let mut reg = depthcal::registration::register(&source, &target, init.as_ref(), &cfg)?;
         if read_from_files {
             reg.timings_ms.insert(0, ("read".into(), read_ms));
         }
         Ok((reg, [source.len(), target.len()]))
     })?;
     let (reg, points) = outcome.map_err(lib_err)?;
-    let report = report::registration(
+    let report = to_json(&depthcal::report::RegistrationReport::new(
         &reg,
-        &report::RegisterInputs {
+        &depthcal::report::RegistrationInputs {
             source: src_name,
             target: tgt_name,
             points,
             seed,
+            truth: None,
             total_ms: start.elapsed().as_secs_f64() * 1e3,
         },
-    );
+    ))?;
     Ok(PyRegistration { reg, report })
 }
 
-/// The error with `context` put before its message (same variant).
-fn with_context(e: depthcal::Error, context: &str) -> depthcal::Error {
-    use depthcal::Error as E;
-    match e {
-        E::InvalidInput(m) => E::InvalidInput(format!("{context}: {m}")),
-        E::Failed(m) => E::Failed(format!("{context}: {m}")),
-        other => other,
-    }
+/// A report as a JSON value (what the command line prints with `--json`).
+pub fn to_json<T: serde::Serialize>(report: &T) -> PyResult<serde_json::Value> {
+    serde_json::to_value(report)
+        .map_err(|e| crate::errors::new_err(Kind::Failed, format!("the report: {e}")))
 }

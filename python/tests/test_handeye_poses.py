@@ -40,7 +40,7 @@ def test_noisy_hand_eye_from_arrays():
     assert [f["frame"] for f in r.residuals] == [str(i) for i in range(15)]
     assert "HandEye(method=\"refined\"" in repr(r)
     d = r.to_dict()
-    assert d["T_ee_cam"] == r.t_ee_cam.tolist() and d["setup"] == "eye-in-hand"
+    assert d["T_ee_cam"]["matrix"] == r.t_ee_cam.tolist() and d["setup"] == "eye-in-hand"
 
 
 def write_matrix_csv(path, poses, ids):

@@ -27,7 +27,7 @@ def test_arrays_equal_the_cli(cli, demo):
     r = depthcal.register(s.points, t.points)
     # Arrays have no file names; the rest is the same.
     assert_same(r.to_dict(), want, ignore=("source", "target"))
-    assert np.array_equal(r.transform, np.array(want["transform"]))
+    assert np.array_equal(r.transform, np.array(want["transform"]["matrix"]))
     assert r.transform.dtype == np.float64 and r.transform.shape == (4, 4)
     assert r.covariance.shape == (6, 6)
     assert r.trusted and r.converged and r.reasons == []
