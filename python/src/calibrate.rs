@@ -264,6 +264,11 @@ pub fn calibrate(
     } else {
         Method::from_name(method).map_err(lib_err)?
     };
+    if method == Method::Guess && init_file.is_none() && init_array.is_none() {
+        return Err(input_err(
+            "method=\"guess\" needs init= (a 4x4 matrix, or a matrix file or an earlier JSON result)",
+        ));
+    }
     let board_pose: Vec<(String, PathBuf)> = board_poses.unwrap_or_default().into_iter().collect();
     if !board_pose.is_empty() && method != Method::Checkerboard {
         return Err(input_err("board_poses is for method=\"checkerboard\""));

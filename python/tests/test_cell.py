@@ -76,7 +76,7 @@ def test_bad_cells(tmp_path):
     os.remove(next((broken / "right" / "depth").iterdir()))
     with pytest.raises(depthcal.Error, match="right"):
         depthcal.calibrate(broken)
-    with pytest.raises(depthcal.InputError, match="expected depth, guess, checkerboard"):
+    with pytest.raises(depthcal.InputError, match="unknown method \"magic\": expected one of depth, guess, checkerboard"):
         depthcal.calibrate("clouds/demo-cell", method="magic")
     with pytest.raises(depthcal.InputError, match="needs init"):
         depthcal.calibrate("clouds/demo-cell", method="guess")
