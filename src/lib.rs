@@ -29,11 +29,13 @@ pub mod index;
 pub mod io;
 pub mod methods;
 pub mod preprocess;
+pub mod profile;
 pub mod registration;
 pub mod report;
 pub mod sim;
 pub mod stats;
 pub mod tempfiles;
+pub mod timing;
 #[cfg(feature = "vision")]
 pub mod vision;
 

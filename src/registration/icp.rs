@@ -224,6 +224,8 @@ pub struct IcpIteration {
     pub step_rotation: Option<f64>,
     /// Translation of that step (cloud units; `None` for the last record).
     pub step_translation: Option<f64>,
+    /// Wall time of the iteration (correspondences, trimming, normal equations, step), milliseconds.
+    pub time_ms: f64,
 }
 
 struct Pair {
@@ -411,6 +413,7 @@ pub fn icp(
     let mut last = None;
     let mut history = Vec::new();
     for it in 0..=cfg.max_iterations {
+        let it_start = std::time::Instant::now();
         // 1. Correspondences.
         let rot32: [[f32; 3]; 3] = {
             let m = t.rotation.to_rotation_matrix();
@@ -530,6 +533,7 @@ pub fn icp(
             residual_sigma: sigma,
             step_rotation: None,
             step_translation: None,
+            time_ms: it_start.elapsed().as_secs_f64() * 1e3,
         });
         last = Some(IcpResult {
             transform: t,
@@ -564,6 +568,7 @@ pub fn icp(
         if let Some(h) = history.last_mut() {
             h.step_rotation = Some(rot);
             h.step_translation = Some(tr);
+            h.time_ms = it_start.elapsed().as_secs_f64() * 1e3;
         }
         if rot < cfg.rotation_tolerance && tr < cfg.translation_tolerance {
             converged = true;

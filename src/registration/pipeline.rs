@@ -18,6 +18,7 @@ use crate::registration::quality::{covariance, degeneracy, Degeneracy};
 use crate::registration::ransac::{ransac_sided, RansacConfig, SideNormals};
 use crate::registration::trust::{assess_registration, Trust, TrustConfig};
 use crate::registration::verify::{verify_candidates, HypothesisPrior, VerifyConfig};
+use crate::timing::{StageRecord, StageTimer};
 use nalgebra::{Isometry3, Matrix6, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -263,19 +264,9 @@ pub struct Registration {
     pub initial: Isometry3<f64>,
     /// The ICP levels, coarse to fine, with each iteration's residuals and inliers.
     pub icp_levels: Vec<IcpLevelTrace>,
-}
-
-struct Timer {
-    t: Instant,
-    out: Vec<(String, f64)>,
-}
-impl Timer {
-    fn lap(&mut self, name: &str) {
-        let now = Instant::now();
-        self.out
-            .push((name.into(), (now - self.t).as_secs_f64() * 1e3));
-        self.t = now;
-    }
+    /// Each stage's wall and CPU time and item counts (the same stages as `timings_ms`; `icp` takes in
+    /// its nearest-neighbour queries, source points × iterations over the levels).
+    pub stages: Vec<StageRecord>,
 }
 
 /// A cloud prepared for one resolution: points, normals, index, and GICP covariances when asked for.
@@ -414,10 +405,7 @@ pub fn register_with_prior(
     progress: &mut dyn FnMut(&str),
     prior: Option<HypothesisPrior>,
 ) -> Result<Registration> {
-    let mut timer = Timer {
-        t: Instant::now(),
-        out: Vec::new(),
-    };
+    let mut timer = StageTimer::new();
     progress("measuring scale");
     let mut warnings = Vec::new();
     let mut src = source.clone();
@@ -465,14 +453,18 @@ pub fn register_with_prior(
         spacing[0],
         spacing[1]
     );
-    timer.lap("scale");
+    timer.lap_counted("scale", Some(src.len() + tgt.len()), None);
     progress("downsampling, normals");
 
     // Global stage.
     let gicp = cfg.icp.factor == IcpFactor::Gicp;
     let s0 = prepare_level(&src, voxel, cfg, init.is_none(), gicp)?;
     let t0 = prepare_level(&tgt, voxel, cfg, init.is_none(), gicp)?;
-    timer.lap("downsample_normals");
+    timer.lap_counted(
+        "downsample_normals",
+        Some(src.len() + tgt.len()),
+        Some(s0.cloud.len() + t0.cloud.len()),
+    );
     progress("features");
     let mut ambiguity = None;
     let (initial, global) = match init {
@@ -494,10 +486,14 @@ pub fn register_with_prior(
                 &t0.index,
                 &fcfg,
             );
-            timer.lap("fpfh");
+            timer.lap_counted(
+                "fpfh",
+                Some(s0.cloud.len() + t0.cloud.len()),
+                Some(sf.len() + tf.len()),
+            );
             progress("matching");
             let corr = match_features(&sf, &tf, &cfg.matching);
-            timer.lap("match");
+            timer.lap_counted("match", Some(sf.len() + tf.len()), Some(corr.len()));
             progress("RANSAC");
             let rcfg = RansacConfig {
                 inlier_distance: cfg.ransac_distance_voxels * voxel,
@@ -518,7 +514,7 @@ pub fn register_with_prior(
                 &rcfg,
                 sides,
             )?;
-            timer.lap("ransac");
+            timer.lap_counted("ransac", Some(corr.len()), Some(r.candidates.len()));
             if let Some(vcfg) = &cfg.verify {
                 progress("verifying hypotheses");
                 // Which hypotheses to verify: the most feature inliers, weighed by the caller's prior.
@@ -563,7 +559,7 @@ pub fn register_with_prior(
                     r.transform = best.transform;
                     r.inlier_count = r.candidates[best.candidate].0;
                 }
-                timer.lap("verify");
+                timer.lap_counted("verify", Some(cands.len()), Some(v.len()));
             }
             progress("ICP");
             log::info!(
@@ -702,7 +698,16 @@ pub fn register_with_prior(
         }
     }
     let (r, s_sub, agreement) = last.expect("at least one ICP level");
-    timer.lap("icp");
+    timer.lap_counted(
+        "icp",
+        Some(
+            traces
+                .iter()
+                .map(|l| l.source_points * l.iterations.len())
+                .sum(),
+        ),
+        Some(r.pairs),
+    );
 
     // Quality.
     let moved: Vec<Vector3<f64>> = s_sub
@@ -748,7 +753,8 @@ pub fn register_with_prior(
         voxel,
         spacing,
         global_points: [s0.cloud.len(), t0.cloud.len()],
-        timings_ms: timer.out,
+        timings_ms: timer.wall_ms(),
+        stages: timer.into_records(),
         warnings,
         ambiguity,
         surface_agreement: agreement,
