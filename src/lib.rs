@@ -30,11 +30,13 @@ pub mod index;
 pub mod io;
 pub mod methods;
 pub mod preprocess;
+pub mod profile;
 pub mod registration;
 pub mod report;
 pub mod sim;
 pub mod stats;
 pub mod tempfiles;
+pub mod timing;
 #[cfg(feature = "vision")]
 pub mod vision;
 

@@ -15,6 +15,7 @@ mod markers;
 mod match_cmd;
 mod methods;
 mod output;
+mod profile;
 mod register;
 mod signals;
 mod simulate;
@@ -60,6 +61,9 @@ enum Command {
     Capture(capture::Args),
     /// Import a recording (ROS1 .bag; RealSense .db3 with the `realsense` feature) into a cell dataset.
     Import(import::Args),
+    /// Where registration spends its time: per-stage wall and CPU time, points in and out, throughput,
+    /// each ICP iteration, peak memory (two clouds or a generated pair of any size).
+    Profile(profile::Args),
 }
 
 /// Parses the command line, runs the command, and returns the process exit code.
@@ -115,6 +119,7 @@ pub fn run() -> i32 {
         Command::Markers(a) => markers::run(a),
         Command::Capture(a) => capture::run(a),
         Command::Import(a) => import::run(a),
+        Command::Profile(a) => profile::run(a),
     };
     match result {
         Ok(()) => 0,

@@ -13,11 +13,12 @@ use crate::preprocess::normals::{
 use crate::preprocess::scale::{estimate_spacing, voxel_for_target, ScaleConfig};
 use crate::preprocess::voxel::voxel_downsample;
 use crate::registration::correspondence::{match_features, MatchConfig};
-use crate::registration::icp::{icp, IcpCloud, IcpConfig, IcpFactor, IcpResult};
+use crate::registration::icp::{icp, IcpCloud, IcpConfig, IcpFactor, IcpIteration, IcpResult};
 use crate::registration::quality::{covariance, degeneracy, Degeneracy};
 use crate::registration::ransac::{ransac_sided, RansacConfig, SideNormals};
 use crate::registration::trust::{assess_registration, Trust, TrustConfig};
 use crate::registration::verify::{verify_candidates, HypothesisPrior, VerifyConfig};
+use crate::timing::{StageRecord, StageTimer};
 use nalgebra::{Isometry3, Matrix6, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -197,6 +198,23 @@ pub struct GlobalSummary {
     pub transform: Isometry3<f64>,
 }
 
+/// One level of the coarse-to-fine ICP: its resolution, its clouds' sizes and what each iteration did.
+#[derive(Clone, Debug, Serialize)]
+pub struct IcpLevelTrace {
+    /// The level's voxel (cloud units).
+    pub voxel: f64,
+    /// The level's correspondence distance (cloud units).
+    pub max_correspondence_distance: f64,
+    /// Source points used (after the stride subsample of `icp_max_source_points`).
+    pub source_points: usize,
+    /// Target points.
+    pub target_points: usize,
+    /// The level met its step tolerances within its budget.
+    pub converged: bool,
+    /// One record per iteration ([`IcpIteration`]).
+    pub iterations: Vec<IcpIteration>,
+}
+
 /// The result of [`register`].
 #[derive(Clone, Debug)]
 pub struct Registration {
@@ -242,19 +260,13 @@ pub struct Registration {
     pub finest_voxel: f64,
     /// Whether the result can be trusted, and why not ([`crate::registration::trust`]).
     pub trust: Trust,
-}
-
-struct Timer {
-    t: Instant,
-    out: Vec<(String, f64)>,
-}
-impl Timer {
-    fn lap(&mut self, name: &str) {
-        let now = Instant::now();
-        self.out
-            .push((name.into(), (now - self.t).as_secs_f64() * 1e3));
-        self.t = now;
-    }
+    /// The transform ICP started from: the global stage's estimate, or the caller's initial guess.
+    pub initial: Isometry3<f64>,
+    /// The ICP levels, coarse to fine, with each iteration's residuals and inliers.
+    pub icp_levels: Vec<IcpLevelTrace>,
+    /// Each stage's wall and CPU time and item counts (the same stages as `timings_ms`; `icp` takes in
+    /// its nearest-neighbour queries, source points × iterations over the levels).
+    pub stages: Vec<StageRecord>,
 }
 
 /// A cloud prepared for one resolution: points, normals, index, and GICP covariances when asked for.
@@ -393,10 +405,7 @@ pub fn register_with_prior(
     progress: &mut dyn FnMut(&str),
     prior: Option<HypothesisPrior>,
 ) -> Result<Registration> {
-    let mut timer = Timer {
-        t: Instant::now(),
-        out: Vec::new(),
-    };
+    let mut timer = StageTimer::new();
     progress("measuring scale");
     let mut warnings = Vec::new();
     let mut src = source.clone();
@@ -444,14 +453,18 @@ pub fn register_with_prior(
         spacing[0],
         spacing[1]
     );
-    timer.lap("scale");
+    timer.lap_counted("scale", Some(src.len() + tgt.len()), None);
     progress("downsampling, normals");
 
     // Global stage.
     let gicp = cfg.icp.factor == IcpFactor::Gicp;
     let s0 = prepare_level(&src, voxel, cfg, init.is_none(), gicp)?;
     let t0 = prepare_level(&tgt, voxel, cfg, init.is_none(), gicp)?;
-    timer.lap("downsample_normals");
+    timer.lap_counted(
+        "downsample_normals",
+        Some(src.len() + tgt.len()),
+        Some(s0.cloud.len() + t0.cloud.len()),
+    );
     progress("features");
     let mut ambiguity = None;
     let (initial, global) = match init {
@@ -473,10 +486,14 @@ pub fn register_with_prior(
                 &t0.index,
                 &fcfg,
             );
-            timer.lap("fpfh");
+            timer.lap_counted(
+                "fpfh",
+                Some(s0.cloud.len() + t0.cloud.len()),
+                Some(sf.len() + tf.len()),
+            );
             progress("matching");
             let corr = match_features(&sf, &tf, &cfg.matching);
-            timer.lap("match");
+            timer.lap_counted("match", Some(sf.len() + tf.len()), Some(corr.len()));
             progress("RANSAC");
             let rcfg = RansacConfig {
                 inlier_distance: cfg.ransac_distance_voxels * voxel,
@@ -497,7 +514,7 @@ pub fn register_with_prior(
                 &rcfg,
                 sides,
             )?;
-            timer.lap("ransac");
+            timer.lap_counted("ransac", Some(corr.len()), Some(r.candidates.len()));
             if let Some(vcfg) = &cfg.verify {
                 progress("verifying hypotheses");
                 // Which hypotheses to verify: the most feature inliers, weighed by the caller's prior.
@@ -542,7 +559,7 @@ pub fn register_with_prior(
                     r.transform = best.transform;
                     r.inlier_count = r.candidates[best.candidate].0;
                 }
-                timer.lap("verify");
+                timer.lap_counted("verify", Some(cands.len()), Some(v.len()));
             }
             progress("ICP");
             log::info!(
@@ -573,6 +590,7 @@ pub fn register_with_prior(
     let mut last: Option<(IcpResult, Vec<[f32; 3]>, f64)> = None;
     let mut finest_voxel = voxel;
     let mut coarse_degeneracy = None;
+    let mut traces = Vec::new();
     let levels = cfg.icp_levels.max(1);
     for level in 0..levels {
         // The last level is clamped to the finest useful voxel (the cloud's own resolution).
@@ -661,6 +679,14 @@ pub fn register_with_prior(
                 cfg.degeneracy_threshold,
             ));
         }
+        traces.push(IcpLevelTrace {
+            voxel: v,
+            max_correspondence_distance: icfg.max_correspondence_distance,
+            source_points: s_sub.len(),
+            target_points: tlev.cloud.len(),
+            converged: r.converged,
+            iterations: r.history.clone(),
+        });
         t = r.transform;
         converged &= r.converged;
         iterations += r.iterations;
@@ -672,7 +698,16 @@ pub fn register_with_prior(
         }
     }
     let (r, s_sub, agreement) = last.expect("at least one ICP level");
-    timer.lap("icp");
+    timer.lap_counted(
+        "icp",
+        Some(
+            traces
+                .iter()
+                .map(|l| l.source_points * l.iterations.len())
+                .sum(),
+        ),
+        Some(r.pairs),
+    );
 
     // Quality.
     let moved: Vec<Vector3<f64>> = s_sub
@@ -718,12 +753,15 @@ pub fn register_with_prior(
         voxel,
         spacing,
         global_points: [s0.cloud.len(), t0.cloud.len()],
-        timings_ms: timer.out,
+        timings_ms: timer.wall_ms(),
+        stages: timer.into_records(),
         warnings,
         ambiguity,
         surface_agreement: agreement,
         finest_voxel,
         trust: Trust::default(),
+        initial,
+        icp_levels: traces,
     };
     out.trust = assess_registration(&out, &cfg.trust, "");
     Ok(out)
