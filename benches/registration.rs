@@ -1,7 +1,10 @@
-//! Every hot stage of `register`, on the sample clouds in `clouds/` (a simulated scene, ~28k points each)
-//! and, when present, on the 3DMatch pair 1→0 from `../shared/data` (~260k points each).
+//! Every hot stage of `register`, on the sample clouds in `clouds/` (a simulated scene, ~28k points each),
+//! on generated pairs of 10k, 100k and 1M points a side (`depthcal::profile::synthetic_pair`; 5M too with
+//! `DEPTHCAL_BENCH_5M=1`) and, when present, on the 3DMatch pair 1→0 from `../shared/data` (~260k points
+//! each). Each group reads its own pair back from a binary PLY in `read_ply`.
 //!
-//! `cargo bench --bench registration` (set `RAYON_NUM_THREADS=2` to pin the thread count).
+//! `cargo bench --bench registration` (set `RAYON_NUM_THREADS=2` to pin the thread count;
+//! `-- synthetic_1m` for one group).
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use depthcal::features::nearest::nearest_both_ways;
@@ -22,6 +25,18 @@ use std::path::Path;
 
 fn pairs() -> Vec<(&'static str, PointCloud, PointCloud)> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut sizes = vec![
+        ("synthetic_10k", 10_000),
+        ("synthetic_100k", 100_000),
+        ("synthetic_1m", 1_000_000),
+    ];
+    if std::env::var("DEPTHCAL_BENCH_5M").is_ok_and(|v| v == "1") {
+        sizes.push(("synthetic_5m", 5_000_000));
+    }
+    let synthetic = sizes.into_iter().map(|(name, n)| {
+        let (s, t, _) = depthcal::profile::synthetic_pair(n, 1).unwrap();
+        (name, s, t)
+    });
     let mut out = vec![(
         "demo",
         depthcal::io::read_cloud(root.join("clouds/demo_source.ply")).unwrap(),
@@ -35,6 +50,7 @@ fn pairs() -> Vec<(&'static str, PointCloud, PointCloud)> {
             depthcal::io::read_cloud(d.join("cloud_bin_0.ply")).unwrap(),
         ));
     }
+    out.extend(synthetic);
     out
 }
 
@@ -42,10 +58,12 @@ fn stages(c: &mut Criterion) {
     for (name, src, tgt) in pairs() {
         let mut g = c.benchmark_group(name);
         g.sample_size(10);
+        let ply = std::env::temp_dir().join(format!("depthcal-bench-{name}.ply"));
+        depthcal::io::write_cloud(&ply, &tgt).unwrap();
         g.bench_function("read_ply", |b| {
-            let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("clouds/demo_target.ply");
-            b.iter(|| black_box(depthcal::io::read_cloud(&p).unwrap()))
+            b.iter(|| black_box(depthcal::io::read_cloud(&ply).unwrap()))
         });
+        std::fs::remove_file(&ply).ok();
         g.bench_function("scale", |b| {
             b.iter(|| {
                 let s = estimate_spacing(&src.points).unwrap();

@@ -60,8 +60,8 @@ pub fn matrix4_text(t: &Isometry3<f64>) -> String {
 #[cfg(test)]
 mod tests {
     use super::config_from_json;
-    use depthcal::config_json::merge_json;
     use depthcal::calibration::robot_to_robot::CalibrateConfig;
+    use depthcal::config_json::merge_json;
     use depthcal::registration::{RegisterConfig, Trim};
 
     #[test]
