@@ -28,8 +28,9 @@ pub const STAGES: [&str; 10] = [
     "total",
 ];
 
-/// The global stages: with none of them asked for, only the fine registration runs (from an initial guess).
-const GLOBAL_STAGES: [&str; 5] = ["downsample_normals", "fpfh", "match", "ransac", "verify"];
+/// The global stages: with none of them asked for, only the fine registration runs (from an initial
+/// guess; `downsample_normals` then prepares its first level).
+const GLOBAL_STAGES: [&str; 4] = ["fpfh", "match", "ransac", "verify"];
 
 /// How to profile.
 #[derive(Clone, Debug)]
@@ -128,6 +129,11 @@ pub struct LevelProfile {
     pub target_points: usize,
     /// The level met its tolerances.
     pub converged: bool,
+    /// Wall time preparing the level's clouds (downsampling, normals, kd-tree; for the first level the
+    /// `downsample_normals` stage), milliseconds.
+    pub prepare_ms: f64,
+    /// Wall time of its iterations, milliseconds.
+    pub iterate_ms: f64,
     /// Nearest-neighbour queries per second over the level's iterations.
     pub queries_per_s: f64,
     /// Every iteration.
@@ -268,16 +274,24 @@ pub fn profile(
         .filter(|n| wanted(n))
         .map(|name| summarise(&name, &runs))
         .collect();
+    let first_prepare = reg
+        .stages
+        .iter()
+        .find(|s| s.name == "downsample_normals")
+        .map_or(0.0, |s| s.wall_ms);
     let icp_levels = reg
         .icp_levels
         .iter()
-        .map(|l| {
+        .enumerate()
+        .map(|(k, l)| {
             let ms: f64 = l.iterations.iter().map(|i| i.time_ms).sum();
             LevelProfile {
                 voxel: l.voxel,
                 source_points: l.source_points,
                 target_points: l.target_points,
                 converged: l.converged,
+                prepare_ms: if k == 0 { first_prepare } else { l.prepare_ms },
+                iterate_ms: ms,
                 queries_per_s: (l.source_points * l.iterations.len()) as f64
                     / (ms * 1e-3).max(1e-9),
                 iterations: l

@@ -145,11 +145,13 @@ fn print_table(r: &ProfileReport) {
     }
     for (k, l) in r.icp_levels.iter().enumerate() {
         println!(
-            "ICP level {k}: voxel {:.4}, {} source / {} target points, {} iterations, {}, {}",
+            "ICP level {k}: voxel {:.4}, {} source / {} target points, prepared in {:.1} ms, {} iterations in {:.1} ms, {}, {}",
             l.voxel,
             l.source_points,
             l.target_points,
+            l.prepare_ms,
             l.iterations.len(),
+            l.iterate_ms,
             if l.converged {
                 "converged"
             } else {

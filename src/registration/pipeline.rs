@@ -211,6 +211,9 @@ pub struct IcpLevelTrace {
     pub target_points: usize,
     /// The level met its step tolerances within its budget.
     pub converged: bool,
+    /// Wall time preparing the level (downsampling, normals, kd-tree), milliseconds; 0 for the first
+    /// level, which reuses the global stage's clouds (`downsample_normals`).
+    pub prepare_ms: f64,
     /// One record per iteration ([`IcpIteration`]).
     pub iterations: Vec<IcpIteration>,
 }
@@ -685,6 +688,7 @@ pub fn register_with_prior(
             source_points: s_sub.len(),
             target_points: tlev.cloud.len(),
             converged: r.converged,
+            prepare_ms: if level == 0 { 0.0 } else { prep_ms },
             iterations: r.history.clone(),
         });
         t = r.transform;
