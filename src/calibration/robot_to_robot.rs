@@ -185,6 +185,9 @@ pub struct Calibration {
     pub normalised_error: Option<NormalisedError>,
     /// Each robot's own frames against each other (reference, other), when the clouds were fused.
     pub consistency: Vec<RobotConsistency>,
+    /// The refinement's ICP levels, coarse to fine, with each iteration's residuals (metres) and inliers
+    /// (empty when not refined).
+    pub icp_levels: Vec<crate::registration::IcpLevelTrace>,
 }
 
 /// The free-space test of the final transform.
@@ -442,6 +445,7 @@ pub fn refine_cell(
         inputs_covariance: Matrix6::zeros(),
         normalised_error: None,
         consistency: Vec::new(),
+        icp_levels: Vec::new(),
     };
     if !ref_cloud.views.is_empty() && !other_cloud.views.is_empty() {
         let (a, b) = rayon::join(
@@ -490,6 +494,7 @@ pub fn refine_cell(
     out.degeneracy = reg.degeneracy;
     out.error_vs_truth = truth.map(|t| pose_error(&reg.transform, &t));
     out.free_space = free_space_check(fused, &out.transform);
+    out.icp_levels = reg.icp_levels;
     lap("checks", &mut out.timings_ms);
     out.trust = calibration_trust(&out, &constraint, Some(&reg.trust));
     Ok(out)

@@ -202,6 +202,28 @@ pub struct IcpResult {
     pub information: Matrix6<f64>,
     /// `Σ w r²` at the solution.
     pub weighted_sse: f64,
+    /// One record per iteration, in order (the last one is the solution's, with no step).
+    pub history: Vec<IcpIteration>,
+}
+
+/// What one ICP iteration saw and did: its correspondences, the kept pairs' residuals and the step it took.
+/// Recording it changes no result.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct IcpIteration {
+    /// Source points with a target point within the correspondence distance (and normal test).
+    pub pairs: usize,
+    /// Pairs kept by the trimming and used in the step.
+    pub kept: usize,
+    /// `pairs` over the source points, 0–1.
+    pub fitness: f64,
+    /// RMS point-to-point distance of all `pairs` (cloud units).
+    pub rmse: f64,
+    /// RMS of the kept pairs' residuals (cloud units; point-to-plane when the target has normals).
+    pub residual_sigma: f64,
+    /// Rotation of the step taken after this iteration, radians (`None` for the last record).
+    pub step_rotation: Option<f64>,
+    /// Translation of that step (cloud units; `None` for the last record).
+    pub step_translation: Option<f64>,
 }
 
 struct Pair {
@@ -387,6 +409,7 @@ pub fn icp(
     let mut converged = false;
     let mut iterations = 0;
     let mut last = None;
+    let mut history = Vec::new();
     for it in 0..=cfg.max_iterations {
         // 1. Correspondences.
         let rot32: [[f32; 3]; 3] = {
@@ -499,6 +522,15 @@ pub fn icp(
         } else {
             (h, row_sigma.max(1e-12), sse)
         };
+        history.push(IcpIteration {
+            pairs: pairs.len(),
+            kept: keep,
+            fitness,
+            rmse,
+            residual_sigma: sigma,
+            step_rotation: None,
+            step_translation: None,
+        });
         last = Some(IcpResult {
             transform: t,
             iterations,
@@ -510,6 +542,7 @@ pub fn icp(
             pairs: keep,
             information: info,
             weighted_sse: wsse,
+            history: Vec::new(),
         });
         if converged || it == cfg.max_iterations {
             break;
@@ -528,6 +561,10 @@ pub fn icp(
         iterations += 1;
         let rot = Vector3::new(delta[0], delta[1], delta[2]).norm();
         let tr = Vector3::new(delta[3], delta[4], delta[5]).norm();
+        if let Some(h) = history.last_mut() {
+            h.step_rotation = Some(rot);
+            h.step_translation = Some(tr);
+        }
         if rot < cfg.rotation_tolerance && tr < cfg.translation_tolerance {
             converged = true;
         }
@@ -535,6 +572,7 @@ pub fn icp(
     let mut r = last.expect("at least one iteration");
     r.iterations = iterations;
     r.converged = converged;
+    r.history = history;
     Ok(r)
 }
 

@@ -7,7 +7,7 @@ pub mod ransac;
 pub mod rigid_fit;
 pub mod verify;
 
-pub use icp::{icp, IcpCloud, IcpConfig, IcpFactor, IcpResult, Trim};
+pub use icp::{icp, IcpCloud, IcpConfig, IcpFactor, IcpIteration, IcpResult, Trim};
 pub use kernel::RobustKernel;
 pub use ransac::{ransac, PoseConstraint, RansacConfig, RansacResult};
 pub use rigid_fit::rigid_fit;
@@ -16,7 +16,8 @@ pub mod quality;
 pub mod trust;
 
 pub use pipeline::{
-    register, register_with_prior, register_with_progress, RegisterConfig, Registration,
+    register, register_with_prior, register_with_progress, IcpLevelTrace, RegisterConfig,
+    Registration,
 };
 pub use trust::{assess_registration, Trust, TrustConfig};
 pub use verify::HypothesisPrior;

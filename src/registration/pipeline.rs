@@ -12,7 +12,7 @@ use crate::preprocess::normals::{
 use crate::preprocess::scale::{estimate_spacing, voxel_for_target, ScaleConfig};
 use crate::preprocess::voxel::voxel_downsample;
 use crate::registration::correspondence::{match_features, MatchConfig};
-use crate::registration::icp::{icp, IcpCloud, IcpConfig, IcpFactor, IcpResult};
+use crate::registration::icp::{icp, IcpCloud, IcpConfig, IcpFactor, IcpIteration, IcpResult};
 use crate::registration::quality::{covariance, degeneracy, Degeneracy};
 use crate::registration::ransac::{ransac_sided, RansacConfig, SideNormals};
 use crate::registration::trust::{assess_registration, Trust, TrustConfig};
@@ -196,6 +196,23 @@ pub struct GlobalSummary {
     pub transform: Isometry3<f64>,
 }
 
+/// One level of the coarse-to-fine ICP: its resolution, its clouds' sizes and what each iteration did.
+#[derive(Clone, Debug, Serialize)]
+pub struct IcpLevelTrace {
+    /// The level's voxel (cloud units).
+    pub voxel: f64,
+    /// The level's correspondence distance (cloud units).
+    pub max_correspondence_distance: f64,
+    /// Source points used (after the stride subsample of `icp_max_source_points`).
+    pub source_points: usize,
+    /// Target points.
+    pub target_points: usize,
+    /// The level met its step tolerances within its budget.
+    pub converged: bool,
+    /// One record per iteration ([`IcpIteration`]).
+    pub iterations: Vec<IcpIteration>,
+}
+
 /// The result of [`register`].
 #[derive(Clone, Debug)]
 pub struct Registration {
@@ -241,6 +258,10 @@ pub struct Registration {
     pub finest_voxel: f64,
     /// Whether the result can be trusted, and why not ([`crate::registration::trust`]).
     pub trust: Trust,
+    /// The transform ICP started from: the global stage's estimate, or the caller's initial guess.
+    pub initial: Isometry3<f64>,
+    /// The ICP levels, coarse to fine, with each iteration's residuals and inliers.
+    pub icp_levels: Vec<IcpLevelTrace>,
 }
 
 struct Timer {
@@ -553,6 +574,7 @@ pub fn register_with_prior(
     let mut last: Option<(IcpResult, Vec<[f32; 3]>, f64)> = None;
     let mut finest_voxel = voxel;
     let mut coarse_degeneracy = None;
+    let mut traces = Vec::new();
     let levels = cfg.icp_levels.max(1);
     for level in 0..levels {
         // The last level is clamped to the finest useful voxel (the cloud's own resolution).
@@ -641,6 +663,14 @@ pub fn register_with_prior(
                 cfg.degeneracy_threshold,
             ));
         }
+        traces.push(IcpLevelTrace {
+            voxel: v,
+            max_correspondence_distance: icfg.max_correspondence_distance,
+            source_points: s_sub.len(),
+            target_points: tlev.cloud.len(),
+            converged: r.converged,
+            iterations: r.history.clone(),
+        });
         t = r.transform;
         converged &= r.converged;
         iterations += r.iterations;
@@ -704,6 +734,8 @@ pub fn register_with_prior(
         surface_agreement: agreement,
         finest_voxel,
         trust: Trust::default(),
+        initial,
+        icp_levels: traces,
     };
     out.trust = assess_registration(&out, &cfg.trust, "");
     Ok(out)
