@@ -33,6 +33,7 @@ pub mod sim;
 pub mod tempfiles;
 #[cfg(feature = "vision")]
 pub mod vision;
+pub mod viz;
 
 pub use error::{Error, Result};
 pub use geometry::PointCloud;
