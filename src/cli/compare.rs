@@ -29,6 +29,10 @@ pub struct Args {
     /// Print one JSON object on stdout.
     #[arg(long)]
     json: bool,
+    /// Write a visual report into DIR (created if missing; also when no method is trusted): report.html
+    /// (opens offline) and the PNG snapshots overview.png, initial.png, residual.png (docs/report.md).
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
 }
 
 /// One row of the table.
@@ -45,6 +49,18 @@ pub fn run(a: Args) -> Result<()> {
     let cell = Cell::open(&a.cell)?;
     // A malformed optional ground_truth.json is reported before any work.
     cell.ground_truth()?;
+    if let Some(dir) = &a.report {
+        let mut inputs = super::guard::Inputs::default();
+        inputs.add_cell(&cell);
+        inputs.add_opt("--config", a.settings.config_path());
+        super::guard::check_owned_dir(
+            &inputs,
+            "--report",
+            dir,
+            &depthcal::viz::REPORT_FILES,
+            "compare",
+        )?;
+    }
     let mut plan = available(&cell);
     if !a.methods.is_empty() {
         if let Some(m) = a.methods.iter().find(|m| **m == Method::Guess) {
@@ -121,6 +137,23 @@ pub fn run(a: Args) -> Result<()> {
                 Some(acc.map_or((r, tr), |(ar, at)| (ar.max(r), at.max(tr))))
             })
     };
+    if let Some(dir) = &a.report {
+        let runs: Vec<depthcal::viz::MethodRun> = rows
+            .iter()
+            .map(|r| depthcal::viz::MethodRun {
+                method: r.method.name(),
+                outcome: r.outcome.as_ref().map(|(c, _)| c).map_err(|e| e.as_str()),
+                skipped: r.skipped,
+                time_ms: r.outcome.as_ref().map_or(0.0, |(_, ms)| *ms),
+            })
+            .collect();
+        let trusted = runs
+            .iter()
+            .any(|r| r.outcome.is_ok_and(|c| c.trust.trusted));
+        super::visual::write(dir, trusted, || {
+            depthcal::viz::comparison_report(&cell, &fused, &runs)
+        })?;
+    }
     let fuse_ms = fused.fuse_ms;
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
     if a.json {
