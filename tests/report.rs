@@ -51,7 +51,11 @@ fn browser() -> Option<PathBuf> {
 fn dump_dom(chrome: &Path, page: &Path) -> String {
     let profile = scratch(&format!(
         "chrome-profile-{}",
-        page.parent().unwrap().file_name().unwrap().to_string_lossy()
+        page.parent()
+            .unwrap()
+            .file_name()
+            .unwrap()
+            .to_string_lossy()
     ));
     let mut child = std::process::Command::new(chrome)
         .args([
@@ -102,10 +106,7 @@ fn page_data(html: &str) -> Value {
 /// The text of the element with `id` in a DOM dump.
 fn element_text<'a>(dom: &'a str, id: &str) -> &'a str {
     let tag = format!("id=\"{id}\">");
-    let a = dom
-        .find(&tag)
-        .unwrap_or_else(|| panic!("no element {id}"))
-        + tag.len();
+    let a = dom.find(&tag).unwrap_or_else(|| panic!("no element {id}")) + tag.len();
     let b = a + dom[a..].find('<').unwrap();
     &dom[a..b]
 }
@@ -118,7 +119,11 @@ fn visible_points(data: &Value) -> u64 {
         .unwrap()
         .iter()
         .filter(|i| i["visible"] == true && i["kind"] == "points")
-        .map(|i| sc["sets"][i["set"].as_u64().unwrap() as usize]["count"].as_u64().unwrap())
+        .map(|i| {
+            sc["sets"][i["set"].as_u64().unwrap() as usize]["count"]
+                .as_u64()
+                .unwrap()
+        })
         .sum()
 }
 
@@ -173,15 +178,30 @@ fn check_files(dir: &Path) -> (String, Value) {
     let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
     assert!(html.starts_with("<!DOCTYPE html>"));
     assert!(html.contains("Content-Security-Policy") && html.contains("default-src 'none'"));
-    for bad in ["src=\"http", "href=\"http", "src='http", "url(http", "@import", "fetch(", "XMLHttpRequest"] {
-        assert!(!html.contains(bad), "the page references the network: {bad}");
+    for bad in [
+        "src=\"http",
+        "href=\"http",
+        "src='http",
+        "url(http",
+        "@import",
+        "fetch(",
+        "XMLHttpRequest",
+    ] {
+        assert!(
+            !html.contains(bad),
+            "the page references the network: {bad}"
+        );
     }
     assert!(html.len() < 8_000_000, "page of {} bytes", html.len());
     for f in ["overview.png", "initial.png", "residual.png"] {
         let (w, h, rgb) = read_png(&dir.join(f));
         assert_eq!((w, h), (1024, 768), "{f}");
         let distinct: std::collections::HashSet<&[u8]> = rgb.chunks_exact(3).collect();
-        assert!(distinct.len() > 50, "{f} is blank ({} colours)", distinct.len());
+        assert!(
+            distinct.len() > 50,
+            "{f} is blank ({} colours)",
+            distinct.len()
+        );
     }
     let data = page_data(&html);
     (html, data)
@@ -193,7 +213,11 @@ fn check_in_browser(dir: &Path, data: &Value) -> String {
         return String::new();
     };
     let dom = dump_dom(&chrome, &dir.join("report.html"));
-    assert!(dom.contains("data-viewer=\"drawn\""), "the viewer did not draw: {}", element_text(&dom, "viewer-status"));
+    assert!(
+        dom.contains("data-viewer=\"drawn\""),
+        "the viewer did not draw: {}",
+        element_text(&dom, "viewer-status")
+    );
     let want = visible_points(data);
     assert!(want > 1000, "{want}");
     assert_eq!(element_text(&dom, "points-drawn"), want.to_string());
@@ -216,7 +240,11 @@ fn calibrate_report_on_the_demo_cell() {
         "--output",
         s(&dir),
     ]);
-    eprintln!("calibrate --report: {:.1} s; {}", t0.elapsed().as_secs_f64(), err.trim());
+    eprintln!(
+        "calibrate --report: {:.1} s; {}",
+        t0.elapsed().as_secs_f64(),
+        err.trim()
+    );
     assert_eq!(code, 0, "{err}");
     let json: Value = serde_json::from_str(&out).unwrap();
     assert!(err.contains("report.html"), "{err}");
@@ -224,25 +252,57 @@ fn calibrate_report_on_the_demo_cell() {
     assert!(dir.join("calibration.json").is_file());
     assert_eq!(data["kind"], "calibrate");
     let sum = &data["summary"];
-    for k in ["transform", "fitness", "inlier_rmse", "overlap", "sigma", "trusted", "reasons", "converged"] {
+    for k in [
+        "transform",
+        "fitness",
+        "inlier_rmse",
+        "overlap",
+        "sigma",
+        "trusted",
+        "reasons",
+        "converged",
+    ] {
         close(&sum[k], &json[k], k);
     }
-    close(&sum["initial_transform"], &json["initial"]["transform"], "initial");
+    close(
+        &sum["initial_transform"],
+        &json["initial"]["transform"],
+        "initial",
+    );
     close(&sum["fused_points"], &json["fused_points"], "fused points");
     assert_eq!(data["frame_ids"], json["frame_ids"]);
     // The consistency and the ICP history are there, one frame per pose.
-    assert_eq!(data["consistency"][0]["frames"].as_array().unwrap().len(), 20);
+    assert_eq!(
+        data["consistency"][0]["frames"].as_array().unwrap().len(),
+        20
+    );
     let levels = data["icp_levels"].as_array().unwrap();
     assert!(!levels.is_empty());
-    let iters: usize = levels.iter().map(|l| l["iterations"].as_array().unwrap().len() - 1).sum();
+    let iters: usize = levels
+        .iter()
+        .map(|l| l["iterations"].as_array().unwrap().len() - 1)
+        .sum();
     assert!(iters > 0);
     // The reference cloud embedded whole (the demo cell is below the budget), the other cloud once.
-    assert_eq!(data["scene"]["sets"][0]["count"], json["fused_points"]["reference"]);
-    assert_eq!(data["scene"]["sets"][1]["count"], json["fused_points"]["other"]);
+    assert_eq!(
+        data["scene"]["sets"][0]["count"],
+        json["fused_points"]["reference"]
+    );
+    assert_eq!(
+        data["scene"]["sets"][1]["count"],
+        json["fused_points"]["other"]
+    );
     // Every transform file of --output shows on the page as written.
     let launch = std::fs::read_to_string(dir.join("static_tf.launch.py")).unwrap();
-    let escaped = launch.trim_end().replace('&', "&amp;").replace('"', "&quot;").replace('\'', "&#39;");
-    assert!(html.contains(&escaped), "the launch file is not on the page");
+    let escaped = launch
+        .trim_end()
+        .replace('&', "&amp;")
+        .replace('"', "&quot;")
+        .replace('\'', "&#39;");
+    assert!(
+        html.contains(&escaped),
+        "the launch file is not on the page"
+    );
     // Both robots' colours on the overview, the residual scale on the residual snapshot.
     let (_, _, rgb) = read_png(&dir.join("overview.png"));
     let (o, b) = colour_counts(&rgb);
@@ -251,7 +311,10 @@ fn calibrate_report_on_the_demo_cell() {
     if !dom.is_empty() {
         assert!(dom.contains("id=\"verdict\" data-trusted=\"true\""));
         let m = json["transform"][0][3].as_f64().unwrap();
-        assert!(dom.contains(&format!("data-r=\"0\" data-c=\"3\">{m:.6}<")), "x of the matrix");
+        assert!(
+            dom.contains(&format!("data-r=\"0\" data-c=\"3\">{m:.6}<")),
+            "x of the matrix"
+        );
         let sr = &json["sigma"]["rotation_deg"];
         let text = format!(
             "{:.4} {:.4} {:.4}",
@@ -285,10 +348,22 @@ fn register_report_on_the_sample_pair() {
     let (_, data) = check_files(&dir);
     assert_eq!(data["kind"], "register");
     let sum = &data["summary"];
-    for k in ["transform", "fitness", "inlier_rmse", "overlap", "trusted", "iterations", "converged"] {
+    for k in [
+        "transform",
+        "fitness",
+        "inlier_rmse",
+        "overlap",
+        "trusted",
+        "iterations",
+        "converged",
+    ] {
         close(&sum[k], &json[k], k);
     }
-    close(&sum["initial_transform"], &json["global"]["transform"], "global estimate");
+    close(
+        &sum["initial_transform"],
+        &json["global"]["transform"],
+        "global estimate",
+    );
     // The 1-σ of the page is the covariance's diagonal.
     let cov = &json["covariance"];
     for k in 0..3 {
@@ -363,7 +438,13 @@ fn an_untrusted_result_is_reported_and_says_so() {
     assert!(html.contains("data-trusted=\"false\"><strong>NOT TRUSTED</strong>"));
     let reasons = data["summary"]["reasons"].as_array().unwrap();
     assert!(!reasons.is_empty());
-    assert!(html.contains(&reasons[0].as_str().unwrap().replace('\'', "&#39;").replace('"', "&quot;")));
+    assert!(html.contains(
+        &reasons[0]
+            .as_str()
+            .unwrap()
+            .replace('\'', "&#39;")
+            .replace('"', "&quot;")
+    ));
     // The snapshots carry the verdict in red.
     let (_, _, rgb) = read_png(&dir.join("overview.png"));
     let red = rgb.chunks_exact(3).filter(|p| p == &[255, 70, 70]).count();
@@ -373,7 +454,10 @@ fn an_untrusted_result_is_reported_and_says_so() {
 #[test]
 fn the_report_directory_follows_the_output_rules() {
     let d = scratch("report-dir-rules");
-    let (src, tgt) = (repo("clouds/demo_source.ply"), repo("clouds/demo_target.ply"));
+    let (src, tgt) = (
+        repo("clouds/demo_source.ply"),
+        repo("clouds/demo_target.ply"),
+    );
     // A directory holding someone else's files is refused before any work, and left as it was.
     let busy = d.join("busy");
     std::fs::create_dir(&busy).unwrap();
@@ -381,7 +465,10 @@ fn the_report_directory_follows_the_output_rules() {
     let t0 = Instant::now();
     let (code, _, err) = depthcal(&["register", &src, &tgt, "--report", s(&busy)]);
     assert_eq!(code, 1, "{err}");
-    assert!(err.contains("notes.txt") && err.contains("--report"), "{err}");
+    assert!(
+        err.contains("notes.txt") && err.contains("--report"),
+        "{err}"
+    );
     assert!(t0.elapsed() < Duration::from_secs(20));
     assert_eq!(listing(&busy).len(), 1);
     // A file, a missing parent, the cell's own directory.
@@ -397,7 +484,10 @@ fn the_report_directory_follows_the_output_rules() {
     let before = listing(Path::new(&cell));
     let (code, _, err) = depthcal(&["calibrate", &cell, "--report", &cell]);
     assert_eq!(code, 1, "{err}");
-    assert!(err.contains("refusing") || err.contains("does not write"), "{err}");
+    assert!(
+        err.contains("refusing") || err.contains("does not write"),
+        "{err}"
+    );
     let (code, _, err) = depthcal(&["compare", &cell, "--report", &format!("{cell}/left")]);
     assert_eq!(code, 1, "{err}");
     assert!(err.contains("refusing"), "{err}");
