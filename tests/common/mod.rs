@@ -139,4 +139,5 @@ pub fn write_kuka_pose_file(
     }
     std::fs::write(path, s).unwrap();
 }
+pub mod bag;
 pub mod foreign;
