@@ -11,7 +11,6 @@ use common::{depthcal, listing};
 use depthcal::cell::Cell;
 use depthcal::geometry::pose::{KukaPose, PoseFormat};
 use depthcal::geometry::transform::pose_error;
-use std::io::Write;
 use std::path::Path;
 
 /// The depth of pixel (u, v) in frame k (raw units; 0 = no data).

@@ -258,10 +258,16 @@ fn poses_from_tf_match_an_independent_interpolation() {
     for (k, f) in r.frames.iter().enumerate() {
         let want = expected(depth_time(k as u64), &cov);
         let (rot, tr) = pose_error(&f.t_base_ee, &want);
-        assert!(rot < TIME_TOL_DEG && tr < TIME_TOL_M, "frame {k}: {rot} deg, {tr} m");
+        assert!(
+            rot < TIME_TOL_DEG && tr < TIME_TOL_M,
+            "frame {k}: {rot} deg, {tr} m"
+        );
         // Not the closed-form motion at the stamp (the samples are interpolated, not the function).
         let exact = base_link1(secs(depth_time(k as u64) - T0_NS)) * link1_flange();
-        assert!(pose_error(&f.t_base_ee, &exact).1 > 5.0 * TIME_TOL_M, "frame {k}");
+        assert!(
+            pose_error(&f.t_base_ee, &exact).1 > 5.0 * TIME_TOL_M,
+            "frame {k}"
+        );
         // The depth is the frame's own.
         let img = r.load_depth(k).unwrap();
         assert_eq!(img.data[0], 500 + 100 * k as u16);
