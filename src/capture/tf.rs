@@ -68,6 +68,21 @@ struct Edge {
     samples: Vec<(f64, Isometry3<f64>)>,
 }
 
+/// What [`TfBuffer::edges`] lists of one edge.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TfEdge {
+    /// The parent frame.
+    pub parent: String,
+    /// The child frame.
+    pub child: String,
+    /// Published on `/tf_static`.
+    pub is_static: bool,
+    /// Dynamic samples on `/tf`.
+    pub samples: usize,
+    /// Their first and last stamps, seconds.
+    pub span_s: Option<(f64, f64)>,
+}
+
 /// The transforms of a recording, by child frame.
 #[derive(Clone, Debug, Default)]
 pub struct TfBuffer {
@@ -155,23 +170,20 @@ impl TfBuffer {
         v
     }
 
-    /// The edges as `(parent, child, static, samples, first and last stamp)`, by child.
-    pub fn edges(&self) -> Vec<(String, String, bool, usize, Option<(f64, f64)>)> {
+    /// The edges, by child frame.
+    pub fn edges(&self) -> Vec<TfEdge> {
         self.edges
             .iter()
-            .map(|(c, e)| {
-                let span = e
+            .map(|(c, e)| TfEdge {
+                parent: e.parent.clone(),
+                child: c.clone(),
+                is_static: e.fixed.is_some(),
+                samples: e.samples.len(),
+                span_s: e
                     .samples
                     .first()
                     .zip(e.samples.last())
-                    .map(|(a, b)| (a.0, b.0));
-                (
-                    e.parent.clone(),
-                    c.clone(),
-                    e.fixed.is_some(),
-                    e.samples.len(),
-                    span,
-                )
+                    .map(|(a, b)| (a.0, b.0)),
             })
             .collect()
     }

@@ -254,10 +254,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 "color_stream": rec.color().map(|c| c.name.clone()),
                 "color_frames": rec.color().map(|c| c.frames.len()),
                 "intrinsics": i,
-                "tf": tf.edges().iter().map(|(p, c, fixed, n, span)| serde_json::json!({
-                    "parent": p, "child": c, "static": fixed, "samples": n,
-                    "first_s": span.map(|s| s.0), "last_s": span.map(|s| s.1),
-                })).collect::<Vec<_>>(),
+                "tf": tf.edges(),
             });
             println!("{}", serde_json::to_string_pretty(&out)?);
         } else {
@@ -280,14 +277,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 "  intrinsics {}x{} fx {} fy {} ppx {} ppy {} model {} coeffs {:?}, depth scale {} m",
                 i.width, i.height, i.fx, i.fy, i.ppx, i.ppy, i.model, i.coeffs, i.depth_scale
             );
-            for (p, c, fixed, n, span) in tf.edges() {
-                let when = match span {
-                    Some((f, l)) => format!("{n} /tf samples, t = {f:.6} .. {l:.6} s"),
+            for e in tf.edges() {
+                let when = match e.span_s {
+                    Some((f, l)) => format!("{} /tf samples, t = {f:.6} .. {l:.6} s", e.samples),
                     None => String::new(),
                 };
-                let both = if fixed && n > 0 { ", " } else { "" };
-                let st = if fixed { "static" } else { "" };
-                println!("  tf {p} -> {c}: {st}{both}{when}");
+                let both = if e.is_static && e.samples > 0 {
+                    ", "
+                } else {
+                    ""
+                };
+                let st = if e.is_static { "static" } else { "" };
+                println!("  tf {} -> {}: {st}{both}{when}", e.parent, e.child);
             }
         }
         return Ok(());
