@@ -3,10 +3,11 @@
 //! transform in every format; quality and verdict.
 
 use super::page::{banner, details, esc, list, num, section, table, viewer};
-use super::scene::{frustum, triad, Item, Segment, Shape, FLAGGED, PALETTE};
+use super::scene::{frustum, triad, Segment, FLAGGED, PALETTE};
 use super::sections::{
-    consistency_section, convergence_section, log_section, matrix_block, matrix_table,
-    pose_formats, residual_section, sigma, three, transform_file_blocks,
+    consistency_section, convergence_section, degeneracy_cell, lines_item, log_section,
+    matrix_block, matrix_table, pose_formats, residual_section, sigma, three,
+    transform_file_blocks, yes_no,
 };
 use super::{finish, Placement, Report, TwoClouds};
 use crate::calibration::consistency::RobotConsistency;
@@ -107,37 +108,19 @@ pub(super) fn summary(c: &Calibration) -> serde_json::Value {
 
 /// The quality figures of a calibration as a table.
 pub(super) fn quality_table(c: &Calibration) -> String {
-    let yes = |b: bool| {
-        if b {
-            "yes"
-        } else {
-            "<span class=\"bad\">no</span>"
-        }
-        .to_string()
-    };
     let mut rows = vec![];
     if c.refined {
         rows.push(("fitness", num(c.fitness, 4)));
         rows.push(("inlier RMSE (mm)", num(c.inlier_rmse * 1e3, 3)));
         rows.push(("overlap", num(c.overlap, 4)));
-        rows.push(("converged", yes(c.converged)));
+        rows.push(("converged", yes_no(c.converged)));
     } else {
         rows.push((
             "quality",
             "not refined (--no-refine): the initialiser's estimate and its 1-σ".into(),
         ));
     }
-    rows.push((
-        "degenerate",
-        if c.degeneracy.is_degenerate() {
-            format!(
-                "<span class=\"bad\">yes</span>: {}",
-                esc(&c.degeneracy.describe())
-            )
-        } else {
-            "no".into()
-        },
-    ));
+    rows.push(("degenerate", degeneracy_cell(&c.degeneracy)));
     if let Some(f) = &c.free_space {
         rows.push((
             "free space",
@@ -263,37 +246,34 @@ pub fn calibration_report(
     let len =
         triad_length(extent(&fused.reference.cloud.points).max(extent(&fused.other.cloud.points)));
     let cons = |name: &str| c.consistency.iter().find(|r| r.robot == name);
-    sc.items.push(Item {
-        name: format!("{} base and cameras", c.reference),
-        shape: Shape::Lines(base_and_cameras(rr, cons(&rr.name), len, PALETTE[0])),
-        transform: Isometry3::identity(),
-        rgb: PALETTE[0],
-        visible: true,
-        views: vec!["refined", "initial"],
-    });
+    sc.items.push(lines_item(
+        format!("{} base and cameras", c.reference),
+        base_and_cameras(rr, cons(&rr.name), len, PALETTE[0]),
+        Isometry3::identity(),
+        true,
+        vec!["refined", "initial"],
+    ));
     let other_lines = base_and_cameras(or, cons(&or.name), len, PALETTE[1]);
     if c.refined {
-        sc.items.push(Item {
-            name: format!("{} base and cameras, refined", c.other),
-            shape: Shape::Lines(other_lines.clone()),
-            transform: c.transform,
-            rgb: PALETTE[1],
-            visible: true,
-            views: vec!["refined"],
-        });
+        sc.items.push(lines_item(
+            format!("{} base and cameras, refined", c.other),
+            other_lines.clone(),
+            c.transform,
+            true,
+            vec!["refined"],
+        ));
     }
-    sc.items.push(Item {
-        name: format!("{} base and cameras, initial estimate", c.other),
-        shape: Shape::Lines(other_lines),
-        transform: c.initial.transform,
-        rgb: PALETTE[2],
-        visible: !c.refined,
-        views: if c.refined {
+    sc.items.push(lines_item(
+        format!("{} base and cameras, initial estimate", c.other),
+        other_lines,
+        c.initial.transform,
+        !c.refined,
+        if c.refined {
             vec!["initial"]
         } else {
             vec!["refined", "initial"]
         },
-    });
+    ));
     sc.fit_camera();
 
     let cell_name = cell

@@ -4,9 +4,10 @@
 
 use super::calibration::{base_and_cameras, extent, quality_table, reach, summary, triad_length};
 use super::page::{banner, details, esc, grid, section, viewer};
-use super::scene::{Item, Shape, PALETTE};
+use super::scene::PALETTE;
 use super::sections::{
-    consistency_section, convergence_section, matrix_table, pose_formats, residual_section,
+    consistency_section, convergence_section, lines_item, matrix_table, pose_formats,
+    residual_section,
 };
 use super::{finish, Placement, Report, TwoClouds};
 use crate::calibration::robot_to_robot::{robot_pair, Calibration, FusedCell};
@@ -107,37 +108,29 @@ pub fn comparison_report(cell: &Cell, fused: &FusedCell, runs: &[MethodRun]) -> 
     ) -> Option<&'c crate::calibration::consistency::RobotConsistency> {
         c.and_then(|c| c.consistency.iter().find(|r| r.robot == name))
     }
-    sc.items.push(Item {
-        name: format!("{} base and cameras", rr.name),
-        shape: Shape::Lines(base_and_cameras(
-            rr,
-            cons(lead_cal, &rr.name),
-            len,
-            PALETTE[0],
-        )),
-        transform: Isometry3::identity(),
-        rgb: PALETTE[0],
-        visible: true,
-        views: vec!["refined", "initial"],
-    });
+    sc.items.push(lines_item(
+        format!("{} base and cameras", rr.name),
+        base_and_cameras(rr, cons(lead_cal, &rr.name), len, PALETTE[0]),
+        Isometry3::identity(),
+        true,
+        vec!["refined", "initial"],
+    ));
     if let Some(c) = lead_cal {
         let lines = base_and_cameras(or, cons(lead_cal, &or.name), len, PALETTE[1]);
-        sc.items.push(Item {
-            name: format!("{} base and cameras by {}", or.name, c.method),
-            shape: Shape::Lines(lines.clone()),
-            transform: c.transform,
-            rgb: PALETTE[1],
-            visible: true,
-            views: vec!["refined"],
-        });
-        sc.items.push(Item {
-            name: format!("{} base and cameras, initial estimate", or.name),
-            shape: Shape::Lines(lines),
-            transform: c.initial.transform,
-            rgb: PALETTE[2],
-            visible: false,
-            views: vec!["initial"],
-        });
+        sc.items.push(lines_item(
+            format!("{} base and cameras by {}", or.name, c.method),
+            lines.clone(),
+            c.transform,
+            true,
+            vec!["refined"],
+        ));
+        sc.items.push(lines_item(
+            format!("{} base and cameras, initial estimate", or.name),
+            lines,
+            c.initial.transform,
+            false,
+            vec!["initial"],
+        ));
     }
     sc.fit_camera();
 

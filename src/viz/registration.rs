@@ -5,8 +5,8 @@
 use super::page::{banner, details, esc, num, section, table, viewer};
 use super::scene::PALETTE;
 use super::sections::{
-    convergence_section, log_section, matrix_block, matrix_table, pose_formats, residual_section,
-    sigma, three,
+    convergence_section, degeneracy_cell, log_section, matrix_block, matrix_table, pose_formats,
+    residual_section, sigma, three, yes_no,
 };
 use super::{finish, Placement, Report, TwoClouds};
 use crate::error::Result;
@@ -70,32 +70,14 @@ pub fn registration_report(
         &reg.trust.reasons,
         &reg.trust.suggestions,
     );
-    let yes = |b: bool| {
-        if b {
-            "yes"
-        } else {
-            "<span class=\"bad\">no</span>"
-        }
-        .to_string()
-    };
     let mut q = vec![
         ("fitness", num(reg.fitness, 4)),
         ("inlier RMSE", num(reg.inlier_rmse, 6)),
         ("overlap", num(reg.overlap, 4)),
         ("surface agreement", num(reg.surface_agreement, 4)),
-        ("converged", yes(reg.converged)),
+        ("converged", yes_no(reg.converged)),
         ("ICP iterations", reg.iterations.to_string()),
-        (
-            "degenerate",
-            if reg.degeneracy.is_degenerate() {
-                format!(
-                    "<span class=\"bad\">yes</span>: {}",
-                    esc(&reg.degeneracy.describe())
-                )
-            } else {
-                "no".into()
-            },
-        ),
+        ("degenerate", degeneracy_cell(&reg.degeneracy)),
         (
             "voxel / spacing",
             format!(

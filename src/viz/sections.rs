@@ -27,6 +27,43 @@ pub fn sigma(cov: &Matrix6<f64>, scale: f64) -> ([f64; 3], [f64; 3]) {
     )
 }
 
+/// `yes`, or a red `no`.
+pub fn yes_no(b: bool) -> String {
+    if b {
+        "yes"
+    } else {
+        "<span class=\"bad\">no</span>"
+    }
+    .to_string()
+}
+
+/// `no`, or a red `yes` with the weak directions.
+pub fn degeneracy_cell(d: &crate::registration::quality::Degeneracy) -> String {
+    if d.is_degenerate() {
+        format!("<span class=\"bad\">yes</span>: {}", esc(&d.describe()))
+    } else {
+        "no".into()
+    }
+}
+
+/// A line set of the scene (base triads, camera frusta) under `transform`.
+pub fn lines_item(
+    name: String,
+    lines: Vec<super::scene::Segment>,
+    transform: Isometry3<f64>,
+    visible: bool,
+    views: Vec<&'static str>,
+) -> super::scene::Item {
+    super::scene::Item {
+        name,
+        shape: super::scene::Shape::Lines(lines),
+        transform,
+        rgb: [200, 200, 200],
+        visible,
+        views,
+    }
+}
+
 /// Three numbers with `dec` decimals, space separated.
 pub fn three(v: &[f64; 3], dec: usize) -> String {
     v.iter().map(|x| num(*x, dec)).collect::<Vec<_>>().join(" ")
