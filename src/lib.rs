@@ -39,6 +39,7 @@ pub mod tempfiles;
 pub mod timing;
 #[cfg(feature = "vision")]
 pub mod vision;
+pub mod viz;
 
 pub use error::{Error, Result};
 pub use geometry::PointCloud;

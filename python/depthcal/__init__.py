@@ -12,7 +12,7 @@ Main functions:
 
 * :func:`register` -- the rigid transform moving one cloud onto another, with its uncertainty and a
   verdict (trusted or not, with the reasons).
-* :func:`calibrate` -- ``T_base1_base2`` of a two-robot cell dataset; :func:`fuse`, :func:`simulate`.
+* :func:`calibrate` -- ``T_base1_base2`` of a two-robot cell dataset; :func:`fuse`, :func:`simulate`; :func:`profile` -- where registration spends its time.
 * :func:`handeye` -- ``T_ee_cam`` from (N, 4, 4) robot and board poses.
 * :func:`read_cloud`, :func:`write_cloud`, :func:`read_poses`, :func:`write_poses`.
 * pose conversions: :func:`kuka_to_matrix`, :func:`matrix_to_kuka`, ``ur``, ``abb``, ``fanuc``,
@@ -47,6 +47,7 @@ from ._depthcal import (
     handeye,
     matrix_to_pose,
     pose_to_matrix,
+    profile,
     read_cloud,
     read_poses,
     register,
@@ -83,6 +84,7 @@ __all__ = [
     "matrix_to_quaternion",
     "matrix_to_ur",
     "pose_to_matrix",
+    "profile",
     "quaternion_to_matrix",
     "read_cloud",
     "read_poses",

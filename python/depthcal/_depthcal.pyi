@@ -208,6 +208,20 @@ def simulate(
     force: bool = False,
     threads: Optional[int] = None,
 ) -> dict[str, Any]: ...
+def profile(
+    source: Union[PathLike, ArrayLike, PointCloud, None] = None,
+    target: Union[PathLike, ArrayLike, PointCloud, None] = None,
+    *,
+    synthetic: Optional[int] = None,
+    init: Optional[ArrayLike] = None,
+    truth: Optional[ArrayLike] = None,
+    voxel: Optional[float] = None,
+    stages: Optional[Sequence[str]] = None,
+    repeat: int = 3,
+    seed: int = 0,
+    threads: Optional[int] = None,
+    config: Config = None,
+) -> dict[str, Any]: ...
 def pose_to_matrix(values: ArrayLike, format: str) -> npt.NDArray[np.float64]: ...
 def matrix_to_pose(matrix: ArrayLike, format: str) -> npt.NDArray[np.float64]: ...
 def read_poses(path: PathLike, format: Optional[str] = None) -> Tuple[list[str], npt.NDArray[np.float64]]: ...

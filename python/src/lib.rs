@@ -15,6 +15,7 @@ mod fuse;
 mod handeye;
 mod pool;
 mod poses;
+mod profile;
 mod register;
 mod simulate;
 
@@ -34,6 +35,7 @@ fn _depthcal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(handeye::handeye, m)?)?;
     m.add_function(wrap_pyfunction!(fuse::fuse, m)?)?;
     m.add_function(wrap_pyfunction!(simulate::simulate, m)?)?;
+    m.add_function(wrap_pyfunction!(profile::profile, m)?)?;
     m.add_function(wrap_pyfunction!(poses::pose_to_matrix, m)?)?;
     m.add_function(wrap_pyfunction!(poses::matrix_to_pose, m)?)?;
     m.add_function(wrap_pyfunction!(poses::read_poses, m)?)?;

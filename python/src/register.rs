@@ -146,16 +146,26 @@ impl PyRegistration {
 
 /// A cloud argument: a path (read with `read_cloud`, NaN points then dropped by the pipeline with a
 /// warning, as the command line does), or points.
-enum CloudArg {
+pub enum CloudArg {
     File(std::path::PathBuf),
     Points(depthcal::PointCloud),
 }
 
-fn cloud_arg(obj: &Bound<'_, PyAny>, what: &str, drop_nonfinite: bool) -> PyResult<CloudArg> {
+pub fn cloud_arg(obj: &Bound<'_, PyAny>, what: &str, drop_nonfinite: bool) -> PyResult<CloudArg> {
     if let Some(p) = convert::path_like(obj) {
         return Ok(CloudArg::File(p));
     }
     Ok(CloudArg::Points(cloud_from_py(obj, what, drop_nonfinite)?))
+}
+
+impl CloudArg {
+    /// The cloud: read from its file, or a copy of the points.
+    pub fn load(&self) -> depthcal::Result<depthcal::PointCloud> {
+        match self {
+            CloudArg::File(p) => depthcal::io::read_cloud(p),
+            CloudArg::Points(c) => Ok(c.clone()),
+        }
+    }
 }
 
 /// Registers ``source`` onto ``target``: finds the rigid transform that moves SOURCE onto TARGET, with

@@ -256,3 +256,20 @@ def test_open3d_clouds_register_directly(demo):
     r2 = depthcal.register(np.asarray(a.points), np.asarray(b.points))
     r3 = depthcal.register(s, t)
     assert np.array_equal(r1.transform, r2.transform) and np.array_equal(r1.transform, r3.transform)
+
+
+def test_profile_reports_every_stage_of_a_synthetic_pair():
+    r = depthcal.profile(synthetic=20000, repeat=1, threads=2)
+    assert r["schema"] == "depthcal.profile/1"
+    names = [s["name"] for s in r["stages"]]
+    assert "icp" in names and "fpfh" in names and names[-1] == "total"
+    assert r["error_vs_truth"]["rotation_deg"] < 0.5
+    fine = depthcal.profile(synthetic=20000, stages=["icp"], repeat=1)
+    assert fine["fine_only"] and len(fine["stages"]) == 1
+
+
+def test_profile_arguments_are_checked():
+    with pytest.raises(depthcal.ConfigError, match="icpp"):
+        depthcal.profile(synthetic=1000, stages=["icpp"])
+    with pytest.raises(depthcal.InputError, match="synthetic"):
+        depthcal.profile()

@@ -10,6 +10,7 @@
 //!   [`crate::geometry::pose`], optionally with a `t_s` column (seconds, the recording's clock) after `frame`.
 //! * [`match_frames`] pairs recorded depth frames with pose rows, by order or by timestamp
 //!   ([`MatchMode`]), and colour frames with depth frames by timestamp.
+//! * [`tf`] takes the poses from a recording's `/tf` and `/tf_static` instead ([`PoseRows::from_tf`]).
 //! * [`import_recording`] runs the whole import of a [`Recording`]: ROS1 `.bag` files with the pure-Rust
 //!   reader of [`rosbag`] (default build), and, with the cargo feature `realsense`, anything librealsense
 //!   plays back (`realsense` module: ROS2 `.db3`, ROS1 `.bag`) plus live capture from a camera.
@@ -19,6 +20,8 @@ pub mod rosbag;
 
 #[cfg(feature = "realsense")]
 pub mod realsense;
+
+pub mod tf;
 
 use crate::camera::{write_depth_png, DepthImage, Intrinsics};
 use crate::camera::{write_rgb_png, RgbImage};
@@ -508,6 +511,9 @@ pub struct PoseRows {
     pub records: Vec<PoseRecord>,
     /// The `t_s` value of each row, seconds, when the file has that column.
     pub times_s: Option<Vec<f64>>,
+    /// Where each row came from, when not from a line of `path` (rows taken from a recording's TF:
+    /// [`PoseRows::from_tf`]).
+    pub origins: Option<Vec<String>>,
 }
 
 impl PoseRows {
@@ -567,6 +573,7 @@ impl PoseRows {
             format,
             records,
             times_s: has_time.then_some(times),
+            origins: None,
         })
     }
 
@@ -577,9 +584,12 @@ impl PoseRows {
         Self::parse(&text, format, path)
     }
 
-    /// `"<file> line <n>"` of row `i`.
+    /// `"<file> line <n>"` of row `i` (or where it came from, see [`PoseRows::origins`]).
     pub fn origin(&self, i: usize) -> String {
-        format!("{} line {}", self.path.display(), self.records[i].line)
+        match self.origins.as_ref().and_then(|o| o.get(i)) {
+            Some(o) => o.clone(),
+            None => format!("{} line {}", self.path.display(), self.records[i].line),
+        }
     }
 }
 

@@ -27,6 +27,9 @@ use std::path::Path;
 pub const IMAGE_TYPE: &str = "sensor_msgs/Image";
 /// The ROS message type of camera calibrations.
 pub const CAMERA_INFO_TYPE: &str = "sensor_msgs/CameraInfo";
+/// The ROS message types of TF transforms (`tf2_msgs/TFMessage`, and old ROS1 `tf`'s `tf/tfMessage`, which
+/// is serialised the same way).
+pub const TF_TYPES: [&str; 2] = ["tf2_msgs/TFMessage", "tf/tfMessage"];
 /// The ROS message type of librealsense's option values.
 pub const FLOAT32_TYPE: &str = "std_msgs/Float32";
 /// The topic suffixes of librealsense's depth-units option (librealsense writes `Depth_Units`).
@@ -53,6 +56,9 @@ pub struct BagImportConfig {
     /// Metres per depth unit, overriding what the recording says (default: its `Depth Units` option, else
     /// 0.001 for 16-bit depth; 0.001 for `32FC1`).
     pub depth_scale: Option<f64>,
+    /// Collect the TF transforms (every `tf2_msgs/TFMessage` topic; those on a topic ending in
+    /// `tf_static` are static) for [`BagRecording::take_tf`] (default false).
+    pub tf: bool,
 }
 
 /// A topic of a bag.
@@ -311,6 +317,66 @@ fn is_depth_encoding(e: &str) -> bool {
 
 fn is_color_encoding(e: &str) -> bool {
     matches!(e, "rgb8" | "bgr8" | "rgba8" | "bgra8")
+}
+
+/// One transform of a `tf2_msgs/TFMessage`: `T_parent_child` at `stamp_s`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RosTransform {
+    /// `header.frame_id`: the parent frame.
+    pub parent: String,
+    /// `child_frame_id`.
+    pub child: String,
+    /// `header.stamp`, seconds (0 when unset).
+    pub stamp_s: f64,
+    /// Maps child coordinates into the parent frame (metres; the quaternion normalised).
+    pub transform: nalgebra::Isometry3<f64>,
+}
+
+/// Decodes a ROS1-serialised `tf2_msgs/TFMessage` (`geometry_msgs/TransformStamped[]`); a non-finite value
+/// or a quaternion far from unit length (|‖q‖ − 1| > 1e-3) is an error naming the transform.
+pub fn decode_tf_message(data: &[u8]) -> std::result::Result<Vec<RosTransform>, String> {
+    let mut m = Msg::new(data);
+    let n = m.u32("transforms length")? as usize;
+    // Each TransformStamped takes at least 76 bytes (empty frame ids).
+    if n.saturating_mul(76) > data.len() {
+        return Err(format!(
+            "truncated message: {n} transforms cannot fit in {} bytes",
+            data.len()
+        ));
+    }
+    let mut out = Vec::with_capacity(n);
+    for k in 0..n {
+        let _seq = m.u32("header.seq")?;
+        let sec = m.u32("header.stamp.sec")?;
+        let nsec = m.u32("header.stamp.nsec")?;
+        let parent = m.string("header.frame_id")?.to_string();
+        let child = m.string("child_frame_id")?.to_string();
+        let mut v = [0.0; 7];
+        for x in &mut v {
+            *x = m.f64("transform")?;
+        }
+        let what = format!("transform {} ({parent} -> {child})", k + 1);
+        if v.iter().any(|x| !x.is_finite()) {
+            return Err(format!("{what}: a value is NaN or infinite"));
+        }
+        let q = nalgebra::Quaternion::new(v[6], v[3], v[4], v[5]);
+        if (q.norm() - 1.0).abs() > 1e-3 {
+            return Err(format!(
+                "{what}: the rotation quaternion has length {:.6}, not 1",
+                q.norm()
+            ));
+        }
+        out.push(RosTransform {
+            parent,
+            child,
+            stamp_s: sec as f64 + nsec as f64 * 1e-9,
+            transform: nalgebra::Isometry3::from_parts(
+                nalgebra::Translation3::new(v[0], v[1], v[2]),
+                nalgebra::UnitQuaternion::from_quaternion(q),
+            ),
+        });
+    }
+    Ok(out)
 }
 
 /// A decoded `sensor_msgs/CameraInfo` (the fields depthcal uses).
@@ -632,6 +698,7 @@ pub struct BagRecording {
     pub camera_info_topic: String,
     /// Where the depth scale came from (`option topic`, `config`, `REP 118 default`).
     pub depth_scale_source: String,
+    tf: super::tf::TfBuffer,
 }
 
 fn longest_prefix<'a>(
@@ -650,6 +717,12 @@ fn longest_prefix<'a>(
 }
 
 impl BagRecording {
+    /// The TF transforms of the bag (empty unless [`BagImportConfig::tf`] asked for them); leaves an empty
+    /// buffer behind.
+    pub fn take_tf(&mut self) -> super::tf::TfBuffer {
+        std::mem::take(&mut self.tf)
+    }
+
     /// Opens a bag, lists its topics and chooses the topics of `cfg` (see [`BagImportConfig`]); reads the
     /// camera info and the timestamps of every depth (and colour) image. Errors name the file and the topic.
     pub fn open(path: impl AsRef<Path>, cfg: &BagImportConfig) -> Result<Self> {
@@ -680,6 +753,7 @@ impl BagRecording {
         let mut images: HashMap<String, Vec<ImageMeta>> = HashMap::new();
         let mut infos: HashMap<String, Vec<RosCameraInfo>> = HashMap::new();
         let mut units: HashMap<String, f32> = HashMap::new();
+        let mut tf = super::tf::TfBuffer::new();
         for_each_message(&path, &bag, &mut conns, |topic, tp, time_ns, data| {
             let info = topics
                 .entry(topic.to_string())
@@ -725,6 +799,17 @@ impl BagRecording {
                         .and_then(|b| b.try_into().ok())
                         .ok_or_else(|| at("truncated message: a Float32 needs 4 bytes".into()))?;
                     units.insert(topic.to_string(), f32::from_le_bytes(b));
+                }
+                t if cfg.tf && TF_TYPES.contains(&t) => {
+                    let is_static = topic.trim_end_matches('/').ends_with("tf_static");
+                    for x in decode_tf_message(data).map_err(at)? {
+                        let t_s = if x.stamp_s > 0.0 {
+                            x.stamp_s
+                        } else {
+                            time_ns as f64 * 1e-9
+                        };
+                        tf.insert(&x.parent, &x.child, t_s, x.transform, is_static);
+                    }
                 }
                 _ => {}
             }
@@ -943,6 +1028,10 @@ impl BagRecording {
             topics,
             camera_info_topic: info_topic,
             depth_scale_source,
+            tf: {
+                tf.finish();
+                tf
+            },
         })
     }
 }

@@ -45,6 +45,10 @@ pub struct Args {
     /// URDF joint, a TF YAML file and the KUKA, UR and ABB frames.
     #[arg(long, value_name = "DIR")]
     output: Option<PathBuf>,
+    /// Write a visual report into DIR (created if missing; also for an untrusted result): report.html (opens
+    /// offline) and the PNG snapshots overview.png, initial.png, residual.png (docs/report.md).
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
     /// The reference robot's base frame id in the ROS outputs (default: its `frame` in cell.toml, else
     /// ROBOT_base).
     #[arg(long, value_name = "ID")]
@@ -87,34 +91,9 @@ fn output_names() -> Vec<&'static str> {
     v
 }
 
-/// Checks `--output DIR` before any work: not a file, its parent exists, it is not and holds no input,
-/// and when it exists it holds only files `--output` writes.
+/// Checks `--output DIR` and `--report DIR` before any work: not a file, its parent exists, it is not and
+/// holds no input, and when it exists it holds only files calibrate writes there.
 fn check_output_dir(a: &Args, cell: &Cell) -> Result<()> {
-    let Some(dir) = &a.output else {
-        return Ok(());
-    };
-    if depthcal::tempfiles::is_temp_path(dir) {
-        anyhow::bail!(
-            "--output {}: names like .NAME.tmp-PID are reserved for temporary files",
-            dir.display()
-        );
-    }
-    if dir.exists() && !dir.is_dir() {
-        anyhow::bail!("--output {}: exists and is not a directory", dir.display());
-    }
-    if !dir.exists() {
-        let parent = match dir.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d,
-            _ => Path::new("."),
-        };
-        if !parent.is_dir() {
-            anyhow::bail!(
-                "--output {}: the directory {} does not exist",
-                dir.display(),
-                parent.display()
-            );
-        }
-    }
     let mut inputs = super::guard::Inputs::default();
     inputs.add_cell(cell);
     inputs.add_opt("--init", a.init.as_ref());
@@ -122,30 +101,12 @@ fn check_output_dir(a: &Args, cell: &Cell) -> Result<()> {
     for (r, f) in &a.board_pose {
         inputs.add(&format!("--board-pose of {r}"), f);
     }
-    inputs.check_output_dir("--output", dir)?;
-    let names = output_names();
-    for n in &names {
-        inputs.check_output("--output", &dir.join(n))?;
-    }
-    if dir.is_dir() {
-        let rd = std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))?;
-        let mut foreign = Vec::new();
-        for e in rd {
-            let e = e.with_context(|| format!("reading {}", dir.display()))?;
-            let name = e.file_name().to_string_lossy().into_owned();
-            let ours = names.contains(&name.as_str()) && e.path().is_file();
-            if !ours && !depthcal::tempfiles::is_temp_path(&e.path()) {
-                foreign.push(name);
-            }
-        }
-        foreign.sort();
-        if !foreign.is_empty() {
-            anyhow::bail!(
-                "--output {}: the directory holds files calibrate does not write ({}); give a new or \
-                 empty directory, or one from an earlier --output",
-                dir.display(),
-                foreign.join(", ")
-            );
+    // One directory may take both.
+    let mut names = output_names();
+    names.extend(depthcal::viz::REPORT_FILES);
+    for (flag, dir) in [("--output", &a.output), ("--report", &a.report)] {
+        if let Some(dir) = dir {
+            super::guard::check_owned_dir(&inputs, flag, dir, &names, "calibrate")?;
         }
     }
     Ok(())
@@ -259,6 +220,11 @@ pub fn run(a: Args) -> Result<()> {
                 dir.display()
             );
         }
+    }
+    if let Some(dir) = &a.report {
+        super::visual::write(dir, c.trust.trusted, || {
+            depthcal::viz::calibration_report(&cell, &c, &fused, &frames)
+        })?;
     }
     if a.json {
         println!("{}", serde_json::to_string_pretty(&report)?);

@@ -28,6 +28,10 @@ pub struct Args {
     /// Print one JSON object on stdout.
     #[arg(long)]
     json: bool,
+    /// Write a visual report into DIR (created if missing; also when no method is trusted): report.html
+    /// (opens offline) and the PNG snapshots overview.png, initial.png, residual.png (docs/report.md).
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
 }
 
 /// Runs the command.
@@ -37,12 +41,45 @@ pub fn run(a: Args) -> Result<()> {
     let cell = Cell::open(&a.cell)?;
     // A malformed optional ground_truth.json is reported before any work.
     cell.ground_truth()?;
+    if let Some(dir) = &a.report {
+        let mut inputs = super::guard::Inputs::default();
+        inputs.add_cell(&cell);
+        inputs.add_opt("--config", a.settings.config_path());
+        super::guard::check_owned_dir(
+            &inputs,
+            "--report",
+            dir,
+            &depthcal::viz::REPORT_FILES,
+            "compare",
+        )?;
+    }
     let quiet = a.json;
-    let cmp = compare_methods(&cell, &a.methods, &cfg, !a.no_refine, &mut |s| {
+    let (cmp, fused) = compare_methods(&cell, &a.methods, &cfg, !a.no_refine, &mut |s| {
         if !quiet {
             eprintln!("{s} ...");
         }
     })?;
+    if let Some(dir) = &a.report {
+        let runs: Vec<depthcal::viz::MethodRun> = cmp
+            .rows
+            .iter()
+            .map(|r| depthcal::viz::MethodRun {
+                method: r.method.name(),
+                outcome: match &r.outcome {
+                    MethodOutcome::Ran(c, _) => Ok(c.as_ref()),
+                    MethodOutcome::Skipped(e) | MethodOutcome::Failed(e) => Err(e.as_str()),
+                },
+                skipped: matches!(r.outcome, MethodOutcome::Skipped(_)),
+                time_ms: match &r.outcome {
+                    MethodOutcome::Ran(_, ms) => *ms,
+                    _ => 0.0,
+                },
+            })
+            .collect();
+        super::visual::write(dir, cmp.any_trusted(), || {
+            depthcal::viz::comparison_report(&cell, &fused, &runs)
+        })?;
+    }
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
     if a.json {
         let report = ComparisonReport::new(&cmp, &a.cell.display().to_string(), total_ms);

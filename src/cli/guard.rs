@@ -155,6 +155,67 @@ impl Inputs {
     }
 }
 
+/// Checks an output directory before any work (`flag` names the option, `command` the command): not a
+/// file, not a reserved temporary name, its parent exists, it is not and holds no input, and when it exists
+/// it holds only files named in `names` (an earlier run's) and temporary files.
+pub fn check_owned_dir(
+    inputs: &Inputs,
+    flag: &str,
+    dir: &Path,
+    names: &[&str],
+    command: &str,
+) -> Result<()> {
+    if depthcal::tempfiles::is_temp_path(dir) {
+        bail!(
+            "{flag} {}: names like .NAME.tmp-PID are reserved for temporary files",
+            dir.display()
+        );
+    }
+    if dir.exists() && !dir.is_dir() {
+        bail!("{flag} {}: exists and is not a directory", dir.display());
+    }
+    if !dir.exists() {
+        let parent = match dir.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        if !parent.is_dir() {
+            bail!(
+                "{flag} {}: the directory {} does not exist",
+                dir.display(),
+                parent.display()
+            );
+        }
+    }
+    inputs.check_output_dir(flag, dir)?;
+    for n in names {
+        inputs.check_output(flag, &dir.join(n))?;
+    }
+    if dir.is_dir() {
+        let rd = std::fs::read_dir(dir)
+            .map_err(|e| anyhow::anyhow!("reading {}: {e}", dir.display()))?;
+        let mut foreign = Vec::new();
+        for e in rd {
+            let e = e.map_err(|e| anyhow::anyhow!("reading {}: {e}", dir.display()))?;
+            let name = e.file_name().to_string_lossy().into_owned();
+            let ours = names.contains(&name.as_str()) && e.path().is_file();
+            if !ours && !depthcal::tempfiles::is_temp_path(&e.path()) {
+                foreign.push(name);
+            }
+        }
+        foreign.sort();
+        if !foreign.is_empty() {
+            bail!(
+                "{flag} {}: the directory holds files {command} does not write ({}); give a new or \
+                 empty directory, or one from an earlier {flag}",
+                dir.display(),
+                foreign.join(", ")
+            );
+        }
+    }
+    Ok(())
+}
+
 /// Checks an output file before any work: not a directory, its directory exists, and its extension is one
 /// of `exts` (lower case, without the dot; empty: any).
 pub fn check_output_file(flag: &str, out: &Path, exts: &[&str]) -> Result<()> {

@@ -45,9 +45,31 @@ pub struct Args {
     /// column (seconds, the recording's clock) after `frame`. Its frame ids become the cell's frame ids.
     #[arg(long)]
     pub poses: Option<PathBuf>,
-    /// The pose file's format (default: from its header).
+    /// The pose file's format (default: from its header). With --tf-base: the format of a new robot's pose
+    /// file (default xyzquat).
     #[arg(long)]
     pub pose_format: Option<PoseFormat>,
+    /// Take each depth frame's robot pose from the recording's /tf and /tf_static instead of a pose file:
+    /// the robot's base frame (with --tf-flange). Every depth frame is imported, with new frame ids.
+    #[arg(
+        long,
+        value_name = "FRAME",
+        requires = "tf_flange",
+        conflicts_with = "poses"
+    )]
+    pub tf_base: Option<String>,
+    /// With --tf-base: the flange (end-effector) frame whose pose in the base frame is T_base_ee, e.g.
+    /// tool0 or flange (the hand-eye is then T_ee_cam of this frame).
+    #[arg(long, value_name = "FRAME", requires = "tf_base")]
+    pub tf_flange: Option<String>,
+    /// With --tf-base: how far before the first or after the last /tf sample of a transform a depth frame may
+    /// be and still take that sample, milliseconds (nothing is extrapolated).
+    #[arg(long, value_name = "MS", default_value_t = 20.0)]
+    pub tf_tolerance_ms: f64,
+    /// With --tf-base: the longest interval between two /tf samples that is interpolated across,
+    /// milliseconds.
+    #[arg(long, value_name = "MS", default_value_t = 250.0)]
+    pub tf_max_gap_ms: f64,
     /// How depth frames are paired with pose rows.
     #[arg(long = "match", value_enum, default_value_t = Match::Order)]
     pub match_mode: Match,
@@ -114,7 +136,10 @@ pub fn parse_hand_eye(spec: &str) -> anyhow::Result<Isometry3<f64>> {
     Ok(depthcal::cell::read_hand_eye_file(Path::new(s))?)
 }
 
-fn open_recording(a: &Args) -> anyhow::Result<Box<dyn Recording>> {
+/// The recording opened, and its TF transforms (collected only with --tf-base or --list, from .bag files).
+type Opened = (Box<dyn Recording>, depthcal::capture::tf::TfBuffer);
+
+fn open_recording(a: &Args) -> anyhow::Result<Opened> {
     let ext = a
         .recording
         .extension()
@@ -138,7 +163,7 @@ fn open_recording(a: &Args) -> anyhow::Result<Box<dyn Recording>> {
 }
 
 #[cfg(feature = "rosbag")]
-fn open_rosbag(a: &Args) -> anyhow::Result<Box<dyn Recording>> {
+fn open_rosbag(a: &Args) -> anyhow::Result<Opened> {
     use depthcal::capture::rosbag::{BagImportConfig, BagRecording};
     let cfg = BagImportConfig {
         depth_topic: a.topic.clone(),
@@ -146,8 +171,9 @@ fn open_rosbag(a: &Args) -> anyhow::Result<Box<dyn Recording>> {
         color: a.color,
         color_topic: a.color_topic.clone(),
         depth_scale: a.depth_scale,
+        tf: a.tf_base.is_some() || a.list,
     };
-    let bag = BagRecording::open(&a.recording, &cfg)?;
+    let mut bag = BagRecording::open(&a.recording, &cfg)?;
     log::info!(
         "{}: depth {} ({} frames), intrinsics from {}, depth scale {} m ({})",
         a.recording.display(),
@@ -157,11 +183,12 @@ fn open_rosbag(a: &Args) -> anyhow::Result<Box<dyn Recording>> {
         bag.intrinsics().depth_scale,
         bag.depth_scale_source
     );
-    Ok(Box::new(bag))
+    let tf = bag.take_tf();
+    Ok((Box::new(bag), tf))
 }
 
 #[cfg(not(feature = "rosbag"))]
-fn open_rosbag(a: &Args) -> anyhow::Result<Box<dyn Recording>> {
+fn open_rosbag(a: &Args) -> anyhow::Result<Opened> {
     bail!(
         "{}: reading ROS1 .bag files needs the `rosbag` feature (on by default), and this depthcal was built \
          without it; rebuild with `cargo build --release --features rosbag`",
@@ -170,8 +197,9 @@ fn open_rosbag(a: &Args) -> anyhow::Result<Box<dyn Recording>> {
 }
 
 #[cfg(feature = "realsense")]
-fn open_librealsense(a: &Args) -> anyhow::Result<Box<dyn Recording>> {
+fn open_librealsense(a: &Args) -> anyhow::Result<Opened> {
     for (flag, given) in [
+        ("--tf-base", a.tf_base.is_some()),
         ("--topic", a.topic.is_some()),
         ("--camera-info-topic", a.camera_info_topic.is_some()),
         ("--color-topic", a.color_topic.is_some()),
@@ -182,11 +210,11 @@ fn open_librealsense(a: &Args) -> anyhow::Result<Box<dyn Recording>> {
         }
     }
     let rec = depthcal::capture::realsense::PlaybackRecording::open(&a.recording, a.color)?;
-    Ok(Box::new(rec))
+    Ok((Box::new(rec), Default::default()))
 }
 
 #[cfg(not(feature = "realsense"))]
-fn open_librealsense(a: &Args) -> anyhow::Result<Box<dyn Recording>> {
+fn open_librealsense(a: &Args) -> anyhow::Result<Opened> {
     bail!(
         "{}: reading this recording needs librealsense's playback, and this depthcal was built without the \
          `realsense` feature; rebuild with `cargo build --release --features realsense` (ROS1 .bag files are \
@@ -207,7 +235,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if let (false, Some(cell_dir), Some(robot)) = (a.list, &a.cell_dir, &a.robot) {
         check_import_outputs(&a, cell_dir, robot)?;
     }
-    let mut rec = open_recording(&a)?;
+    if a.tf_base.is_some() && a.match_mode == Match::Time {
+        bail!(
+            "--match time pairs the rows of a pose file with frames by their t_s; with --tf-base every depth \
+             frame takes its pose from /tf at its own stamp"
+        );
+    }
+    let (mut rec, tf) = open_recording(&a)?;
     if a.list {
         let d = rec.depth();
         let i = rec.intrinsics();
@@ -220,6 +254,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 "color_stream": rec.color().map(|c| c.name.clone()),
                 "color_frames": rec.color().map(|c| c.frames.len()),
                 "intrinsics": i,
+                "tf": tf.edges(),
             });
             println!("{}", serde_json::to_string_pretty(&out)?);
         } else {
@@ -242,13 +277,57 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 "  intrinsics {}x{} fx {} fy {} ppx {} ppy {} model {} coeffs {:?}, depth scale {} m",
                 i.width, i.height, i.fx, i.fy, i.ppx, i.ppy, i.model, i.coeffs, i.depth_scale
             );
+            for e in tf.edges() {
+                let when = match e.span_s {
+                    Some((f, l)) => format!("{} /tf samples, t = {f:.6} .. {l:.6} s", e.samples),
+                    None => String::new(),
+                };
+                let both = if e.is_static && e.samples > 0 {
+                    ", "
+                } else {
+                    ""
+                };
+                let st = if e.is_static { "static" } else { "" };
+                println!("  tf {} -> {}: {st}{both}{when}", e.parent, e.child);
+            }
         }
         return Ok(());
     }
-    let (Some(cell_dir), Some(robot), Some(poses)) = (&a.cell_dir, &a.robot, &a.poses) else {
-        bail!("import needs CELL_DIR, --robot and --poses (or --list to look at the recording)");
+    let (Some(cell_dir), Some(robot)) = (&a.cell_dir, &a.robot) else {
+        bail!(
+            "import needs CELL_DIR, --robot and --poses or --tf-base/--tf-flange (or --list to look at the \
+             recording)"
+        );
     };
-    let rows = PoseRows::read(poses, a.pose_format)?;
+    let rows = match (&a.poses, &a.tf_base, &a.tf_flange) {
+        (Some(poses), _, _) => PoseRows::read(poses, a.pose_format)?,
+        (None, Some(base), Some(flange)) => {
+            let existing = depthcal::capture::existing_frame_ids(cell_dir, robot)?;
+            let ids = depthcal::capture::next_frame_ids(&existing, rec.depth().frames.len());
+            let cfg = depthcal::capture::tf::TfConfig {
+                tolerance_s: a.tf_tolerance_ms * 1e-3,
+                max_gap_s: a.tf_max_gap_ms * 1e-3,
+            };
+            let source = depthcal::capture::tf::TfPoses {
+                buffer: &tf,
+                base,
+                flange,
+                cfg,
+            };
+            PoseRows::from_tf(
+                &source,
+                rec.depth(),
+                &ids,
+                rec.path(),
+                a.pose_format.unwrap_or(PoseFormat::Xyzquat),
+            )
+            .context("--tf-base / --tf-flange")?
+        }
+        _ => bail!(
+            "import needs the robot poses: --poses FILE, or --tf-base FRAME --tf-flange FRAME to take them from \
+             the recording's /tf"
+        ),
+    };
     let mode = match a.match_mode {
         Match::Order => MatchMode::Order,
         Match::Time => MatchMode::Time {

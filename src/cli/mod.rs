@@ -20,6 +20,7 @@ mod register;
 mod signals;
 mod simulate;
 mod vision_args;
+mod visual;
 
 /// depthcal: depth-only calibration of multi-robot cells, and point-cloud registration.
 #[derive(Parser)]

@@ -23,6 +23,10 @@ pub struct Args {
     /// Write the source, transformed into the target frame, to this file (.ply or .xyz).
     #[arg(long, short)]
     output: Option<PathBuf>,
+    /// Write a visual report into DIR (created if missing; also for an untrusted result): report.html (opens
+    /// offline) and the PNG snapshots overview.png, initial.png, residual.png (docs/report.md).
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
     /// Initial guess (a 4x4 matrix file, or a previous --json output): skips the global stage.
     #[arg(long)]
     init: Option<PathBuf>,
@@ -66,6 +70,15 @@ pub fn run(a: Args) -> Result<()> {
         check_output_file("--output", out, &["ply", "xyz", "txt"])?;
         inputs.check_output("--output", out)?;
     }
+    if let Some(dir) = &a.report {
+        super::guard::check_owned_dir(
+            &inputs,
+            "--report",
+            dir,
+            &depthcal::viz::REPORT_FILES,
+            "register",
+        )?;
+    }
     let init = a.init.as_ref().map(read_matrix_file).transpose()?;
     let truth = a.truth.as_ref().map(read_matrix_file).transpose()?;
     let pb = spinner("reading clouds");
@@ -108,6 +121,18 @@ pub fn run(a: Args) -> Result<()> {
             "warning: {} not written: the result is not trusted",
             out.display()
         );
+    }
+    if let Some(dir) = &a.report {
+        let name = |p: &std::path::Path| p.display().to_string();
+        super::visual::write(dir, reg.trust.trusted, || {
+            depthcal::viz::registration_report(
+                &name(&a.source),
+                &source,
+                &name(&a.target),
+                &target,
+                &reg,
+            )
+        })?;
     }
     let error = truth.map(|t| depthcal::geometry::transform::pose_error(&reg.transform, &t));
     if a.json {

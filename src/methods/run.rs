@@ -94,14 +94,15 @@ impl Comparison {
 
 /// Runs every method the cell's data allows ([`available`]), or only `only` when given (then a method
 /// whose table is missing runs and reports its error instead of being skipped). The clouds are fused once.
-/// `Method::Guess` needs an input file and is not part of a comparison.
+/// `Method::Guess` needs an input file and is not part of a comparison. Returns the fused clouds too
+/// (empty when no method needed them).
 pub fn compare_methods(
     cell: &Cell,
     only: &[Method],
     cfg: &CalibrateConfig,
     refine: bool,
     progress: &mut dyn FnMut(&str),
-) -> Result<Comparison> {
+) -> Result<(Comparison, FusedCell)> {
     if only.contains(&Method::Guess) {
         return Err(crate::Error::InvalidInput(
             "compare runs the methods that need no input file; guess is not one".into(),
@@ -174,10 +175,11 @@ pub fn compare_methods(
             }
         })
         .collect();
-    Ok(Comparison {
+    let cmp = Comparison {
         rows,
         refined: refine,
         fuse_ms: fused.fuse_ms,
         has_truth: cell.ground_truth()?.and_then(|g| g.t_base1_base2).is_some(),
-    })
+    };
+    Ok((cmp, fused))
 }

@@ -139,6 +139,7 @@ pub fn write_kuka_pose_file(
     }
     std::fs::write(path, s).unwrap();
 }
+pub mod bag;
 pub mod foreign;
 
 /// Checks that every top-level field of a report `v` is listed in docs/json.md's section of its schema
