@@ -10,7 +10,7 @@
 use crate::calibration::average::PoseAverage;
 use crate::calibration::initializer::{InitialGuess, Initializer, InitializerInput};
 use crate::calibration::robot_to_robot::robot_pair;
-use crate::cell::{Cell, CellRobot, Checkerboard};
+use crate::cell::{Board, Cell, CellRobot};
 use crate::error::{Error, Result};
 use crate::geometry::transform::isometry_from_rows;
 use nalgebra::Isometry3;
@@ -169,10 +169,11 @@ pub fn checkerboard_initializer(
         if let Some((_, p)) = given.iter().find(|(n, _)| n == &r.name) {
             return BoardInBase::from_handeye_json(&r.name, p);
         }
-        let Some(board) = Checkerboard::from_manifest_extra(&cell.manifest.extra, &manifest)?
-        else {
+        let Some(board) = Board::from_manifest_extra(&cell.manifest.extra, &manifest)? else {
             return Err(Error::InvalidInput(format!(
-                "{}: no [board] table (cols, rows, square_m): the checkerboard method needs the board's                  geometry, or give robot {:?}'s board pose from a hand-eye run",
+                "{}: no [board] table (a checkerboard's cols, rows, square_m, or a ChArUco board's type = \"charuco\", \
+                 squares_x, squares_y, square_m, marker_m, dictionary): the checkerboard method needs the board's \
+                 geometry, or give robot {:?}'s board pose from a hand-eye run",
                 manifest.display(),
                 r.name
             )));
@@ -187,7 +188,7 @@ pub fn checkerboard_initializer(
 #[cfg(feature = "vision")]
 fn board_from_images(
     r: &CellRobot,
-    board: &Checkerboard,
+    board: &Board,
     warnings: &mut Vec<String>,
 ) -> Result<BoardInBase> {
     use crate::vision::observe::{board_in_robot_base, ObserveConfig};
@@ -206,7 +207,7 @@ fn board_from_images(
 #[cfg(not(feature = "vision"))]
 fn board_from_images(
     r: &CellRobot,
-    _board: &Checkerboard,
+    _board: &Board,
     _warnings: &mut Vec<String>,
 ) -> Result<BoardInBase> {
     Err(Error::InvalidInput(format!(
