@@ -503,6 +503,112 @@ mod tests {
     }
 
     #[test]
+    fn charuco_layout_and_errors() {
+        let cfg = SimBoardConfig {
+            charuco: Some(DEFAULT_CHARUCO),
+            yaw_range_deg: 0.0,
+            ..Default::default()
+        };
+        let b = SimBoard::place(&cfg, &mut Rng::new(2)).unwrap();
+        let s = DEFAULT_CHARUCO.square_m;
+        // The pattern is centred where asked; square (0, 0) black, (1, 0) white with marker 0 in it.
+        let c = b.t_world_board * Point3::new(3.5 * s, 2.5 * s, 0.0);
+        assert!(c.coords.norm() < 1e-12);
+        assert_eq!(b.is_black(0.5 * s, 0.5 * s), Some(true));
+        assert_eq!(b.is_black(1.0 * s + 0.002, 0.5 * s), Some(false)); // white paper around the marker
+        assert_eq!(b.is_black(-0.001, 0.01), None);
+        assert_eq!(b.codes.len(), 17);
+        // Marker 0's border is black, its cells follow its code.
+        let (n, code) = marker_code("DICT_4X4_50", 0).unwrap();
+        let m = DEFAULT_CHARUCO.marker_m;
+        let cell = m / (n + 2) as f64;
+        let (x0, y0) = (s + (s - m) / 2.0, (s - m) / 2.0);
+        assert_eq!(b.is_black(x0 + cell / 2.0, y0 + 3.0 * cell), Some(true));
+        for r in 0..n {
+            for k in 0..n {
+                let bit = (code >> (n * n - 1 - (r * n + k))) & 1;
+                let at = b.is_black(x0 + (k as f64 + 1.5) * cell, y0 + (r as f64 + 1.5) * cell);
+                assert_eq!(at, Some(bit == 0), "cell {r},{k}");
+            }
+        }
+        // The simulator prints only its own dictionaries; a board too large for its dictionary is refused.
+        let bad = SimBoardConfig {
+            charuco: Some(CharucoBoard {
+                dictionary: crate::cell::MarkerDictionary::Aruco7x7_50,
+                ..DEFAULT_CHARUCO
+            }),
+            ..Default::default()
+        };
+        let e = bad.validate().unwrap_err().to_string();
+        assert!(e.contains("scene.board.charuco.dictionary"), "{e}");
+        let bad = SimBoardConfig {
+            charuco: Some(CharucoBoard {
+                marker_m: 0.05,
+                ..DEFAULT_CHARUCO
+            }),
+            ..Default::default()
+        };
+        let e = bad.validate().unwrap_err().to_string();
+        assert!(e.contains("scene.board.charuco.marker_m"), "{e}");
+    }
+
+    /// The simulator prints ChArUco boards as OpenCV 4.6's `CharucoBoard::draw` draws them: every square's
+    /// colour and every marker cell compared at its centre, for boards of odd and even rows and the four
+    /// dictionaries the simulator has.
+    #[cfg(feature = "vision")]
+    #[test]
+    fn charuco_print_is_opencvs_drawing() {
+        use crate::cell::MarkerDictionary as D;
+        for (sx, sy, sq, mk, dict) in [
+            (5, 7, 0.04, 0.02, D::Aruco6x6_250),
+            (4, 6, 0.04, 0.03, D::Aruco4x4_50),
+            (7, 5, 0.03, 0.024, D::Aruco5x5_100),
+            (3, 4, 0.05, 0.04, D::AprilTag36h11),
+        ] {
+            let cb = CharucoBoard::new(sx, sy, sq, mk, dict).unwrap();
+            let cfg = SimBoardConfig {
+                charuco: Some(cb),
+                yaw_range_deg: 0.0,
+                ..Default::default()
+            };
+            let b = SimBoard::place(&cfg, &mut Rng::new(1)).unwrap();
+            let px = 240u32;
+            let img = crate::vision::charuco_image(&cb, px, 0).unwrap();
+            let n = dict.bits() as f64;
+            let cell = mk / (n + 2.0);
+            let mut checked = 0;
+            let mut check = |x: f64, y: f64| {
+                let (u, v) = ((x / sq * px as f64) as u32, (y / sq * px as f64) as u32);
+                let theirs = img.at(u, v) < 128;
+                assert_eq!(
+                    b.is_black(x, y),
+                    Some(theirs),
+                    "{cb}: board point ({x}, {y})"
+                );
+                checked += 1;
+            };
+            for j in 0..sy {
+                for i in 0..sx {
+                    let (x0, y0) = (i as f64 * sq, j as f64 * sq);
+                    // The square's paper between its edge and the marker, and its centre.
+                    check(x0 + 0.25 * (sq - mk), y0 + 0.25 * (sq - mk));
+                    if cb.marker_in_square(i, j).is_none() {
+                        check(x0 + sq / 2.0, y0 + sq / 2.0);
+                        continue;
+                    }
+                    let (mx, my) = (x0 + (sq - mk) / 2.0, y0 + (sq - mk) / 2.0);
+                    for r in 0..(n as u32 + 2) {
+                        for c in 0..(n as u32 + 2) {
+                            check(mx + (c as f64 + 0.5) * cell, my + (r as f64 + 0.5) * cell);
+                        }
+                    }
+                }
+            }
+            assert!(checked > (sx * sy) as usize * 10, "{checked}");
+        }
+    }
+
+    #[test]
     fn blur_keeps_the_mean_and_spreads_an_edge() {
         let (w, h) = (20, 5);
         let data: Vec<u8> = (0..w * h)

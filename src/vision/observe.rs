@@ -53,6 +53,10 @@ pub struct BoardObservation {
     pub detector: &'static str,
     /// Corners found (a ChArUco view may show part of the board).
     pub corners: usize,
+    /// The corners found, pixels (`(0, 0)` = centre of the top-left pixel).
+    pub image_points: Vec<nalgebra::Point2<f64>>,
+    /// The same corners in the board frame, metres.
+    pub object_points: Vec<nalgebra::Point3<f64>>,
 }
 
 /// The result of [`observe_board`].
@@ -124,6 +128,8 @@ pub fn observe_board(
                 rms_px: pose.rms_px,
                 detector: c.detector,
                 corners: c.len(),
+                image_points: c.image_points,
+                object_points: c.object_points,
             }))
         })
         .collect();
