@@ -201,7 +201,7 @@ impl CharucoBoard {
     /// The marker in square `(column, row)`: its id, or `None` for a black square or one beyond the
     /// board.
     pub fn marker_in_square(&self, i: u32, j: u32) -> Option<u32> {
-        if i >= self.squares_x || j >= self.squares_y || (i + j) % 2 == 0 {
+        if i >= self.squares_x || j >= self.squares_y || (i + j).is_multiple_of(2) {
             return None;
         }
         // White squares before row j, then those before column i in row j.

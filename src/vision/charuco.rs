@@ -34,8 +34,10 @@ pub struct CharucoConfig {
     pub min_adjacent_markers: u32,
     /// Refine the corners again with `cornerSubPix` to `subpix_epsilon_px` (default true).
     pub subpix: bool,
-    /// Half side of that `cornerSubPix` window, pixels. Default none: 80% of the gap between the corner's
-    /// squares and the nearest marker (the distance to the nearest marker corner over √2), 2–11 px.
+    /// Half side of that `cornerSubPix` window, pixels. Default none: per corner, 90% of the white gap
+    /// between its squares and the nearest marker, measured in the image as the distance to the nearest
+    /// marker corner over √2, 2–11 px (a larger window reaches into the markers and biases the corner; 90%
+    /// is the most accurate of 60–110% on rendered views, see docs/vision.md).
     pub subpix_half_window_px: Option<u32>,
     /// Most `cornerSubPix` iterations (default 50).
     pub subpix_max_iterations: u32,
@@ -248,7 +250,7 @@ fn refine(
                 .iter()
                 .map(|q| (q - p).norm())
                 .fold(f64::INFINITY, f64::min);
-            ((0.8 * d / std::f64::consts::SQRT_2).floor() as u32).clamp(2, 11)
+            ((0.9 * d / std::f64::consts::SQRT_2).floor() as u32).clamp(2, 11)
         });
         let mut one: Vector<Point2f> = cv::points2f(std::slice::from_ref(p));
         opencv::imgproc::corner_sub_pix(
