@@ -7,7 +7,7 @@
 #![cfg(feature = "vision")]
 
 mod common;
-use depthcal::cell::Checkerboard;
+use depthcal::cell::{Board, Checkerboard};
 use depthcal::vision::intrinsics::{calibrate_intrinsics, IntrinsicsConfig};
 use depthcal::vision::CornerConfig;
 use std::path::PathBuf;
@@ -32,7 +32,7 @@ fn left_chessboard_images_match_the_reference_intrinsics() {
     let Some(dir) = common::data("opencv-stereo-chessboard-left-right") else {
         return;
     };
-    let board = Checkerboard::new(9, 6, 0.025).unwrap();
+    let board = Board::from(Checkerboard::new(9, 6, 0.025).unwrap());
     let images = left_images(&dir);
     // The reference's own protocol: cornerSubPix window 11 (half side), fixed aspect ratio, k1 k2 p1 p2 k3.
     let reference_flags = IntrinsicsConfig {
@@ -127,7 +127,7 @@ fn images_without_the_board_are_rejected_by_name() {
         return;
     };
     // The right board size of a wrong one: 9x6 is found, 8x5 in none.
-    let wrong = Checkerboard::new(8, 5, 0.025).unwrap();
+    let wrong = Board::from(Checkerboard::new(8, 5, 0.025).unwrap());
     let images = left_images(&dir)[..4].to_vec();
     let e = calibrate_intrinsics(&images, &wrong, &IntrinsicsConfig::default())
         .unwrap_err()
@@ -137,7 +137,7 @@ fn images_without_the_board_are_rejected_by_name() {
         "{e}"
     );
     // Two good images and a missing file: too few views, and the missing file is named.
-    let board = Checkerboard::new(9, 6, 0.025).unwrap();
+    let board = Board::from(Checkerboard::new(9, 6, 0.025).unwrap());
     let mut two = left_images(&dir)[..2].to_vec();
     two.push(dir.join("left99.jpg"));
     let e = calibrate_intrinsics(&two, &board, &IntrinsicsConfig::default())

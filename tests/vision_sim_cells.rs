@@ -17,7 +17,7 @@ use depthcal::calibration::board_init::{
 use depthcal::calibration::handeye::{calibrate_hand_eye, HandEyeConfig, HandEyeFrame};
 use depthcal::calibration::initializer::GlobalRegistration;
 use depthcal::calibration::robot_to_robot::{calibrate, CalibrateConfig};
-use depthcal::cell::{Cell, CellRobot, Checkerboard, GroundTruth};
+use depthcal::cell::{Board, Cell, CellRobot, Checkerboard, GroundTruth};
 use depthcal::geometry::transform::{isometry_from_rows, pose_error};
 use depthcal::sim::{SimBoardConfig, SimCell, SimConfig};
 use depthcal::vision::observe::{
@@ -81,7 +81,7 @@ fn hand_eye_frames(r: &CellRobot, obs: &BoardObservations) -> Vec<HandEyeFrame> 
 /// Hand-eye from the robot's images: (T_ee_cam, T_base_board, frames used, PnP RMS px).
 fn hand_eye_from_images(
     r: &CellRobot,
-    board: &Checkerboard,
+    board: &Board,
 ) -> (Isometry3<f64>, Isometry3<f64>, usize, f64) {
     let obs = observe_board(
         &color_images(r),
@@ -116,7 +116,7 @@ fn simulated_board_cells_hand_eye_and_robot_to_robot() {
         let cell = Cell::open(&dir).unwrap();
         let gt = cell.ground_truth().unwrap().unwrap();
         let truth = gt.t_base1_base2.unwrap();
-        let board = Checkerboard::from_manifest_extra(&cell.manifest.extra, &dir.join("cell.toml"))
+        let board = Board::from_manifest_extra(&cell.manifest.extra, &dir.join("cell.toml"))
             .unwrap()
             .expect("[board] in cell.toml");
 
@@ -215,10 +215,10 @@ fn bad_input_is_named() {
     sim.write(&dir, &|_| {}).unwrap();
     let cell = Cell::open(&dir).unwrap();
     let r = &cell.robots[0];
-    let board = Checkerboard::new(9, 6, 0.03).unwrap();
+    let board = Board::from(Checkerboard::new(9, 6, 0.03).unwrap());
 
     // A board that is not in the images: the error names the images.
-    let wrong = Checkerboard::new(11, 8, 0.03).unwrap();
+    let wrong = Board::from(Checkerboard::new(11, 8, 0.03).unwrap());
     let e = observe_board(
         &color_images(r),
         &wrong,

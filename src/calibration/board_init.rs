@@ -10,7 +10,7 @@
 use crate::calibration::average::PoseAverage;
 use crate::calibration::initializer::{InitialGuess, Initializer, InitializerInput};
 use crate::calibration::robot_to_robot::robot_pair;
-use crate::cell::{Cell, CellRobot, Checkerboard};
+use crate::cell::{Board, Cell, CellRobot};
 use crate::error::{Error, Result};
 use crate::geometry::transform::isometry_from_rows;
 use nalgebra::Isometry3;
@@ -154,7 +154,7 @@ impl Initializer for CheckerboardInitializer {
 /// Finds a robot's board pose in its colour images (`depthcal::vision::initializers` with the `vision`
 /// feature; [`board_needs_vision`] without), noting frames it could not use in the warnings.
 pub type BoardFinder<'a> =
-    dyn FnMut(&CellRobot, &Checkerboard, &mut Vec<String>) -> Result<BoardInBase> + 'a;
+    dyn FnMut(&CellRobot, &Board, &mut Vec<String>) -> Result<BoardInBase> + 'a;
 
 /// The checkerboard initialiser of a cell: each robot's `T_base_board` from `given` (robot name → a
 /// `depthcal handeye --json` file) or, for robots without one, found by `find` in the robot's colour
@@ -174,10 +174,10 @@ pub fn checkerboard_initializer_with(
         if let Some((_, p)) = given.iter().find(|(n, _)| n == &r.name) {
             return BoardInBase::from_handeye_json(&r.name, p);
         }
-        let Some(board) = Checkerboard::from_manifest_extra(&cell.manifest.extra, &manifest)?
-        else {
+        let Some(board) = Board::from_manifest_extra(&cell.manifest.extra, &manifest)? else {
             return Err(Error::InvalidInput(format!(
-                "{}: no [board] table (cols, rows, square_m): the checkerboard method needs the board's \
+                "{}: no [board] table (a checkerboard's cols, rows, square_m, or a ChArUco board's type = \"charuco\", \
+                 squares_x, squares_y, square_m, marker_m, dictionary): the checkerboard method needs the board's \
                  geometry, or give robot {:?}'s board pose from a hand-eye run",
                 manifest.display(),
                 r.name
@@ -193,7 +193,7 @@ pub fn checkerboard_initializer_with(
 /// The [`BoardFinder`] of a build without the `vision` feature: an error saying how to get one.
 pub fn board_needs_vision(
     r: &CellRobot,
-    _board: &Checkerboard,
+    _board: &Board,
     _warnings: &mut Vec<String>,
 ) -> Result<BoardInBase> {
     Err(Error::InvalidInput(format!(

@@ -1,5 +1,6 @@
-//! The calibration checkerboard: its geometry, the board frame convention, and the `[board]` table of
-//! `cell.toml`.
+//! The calibration boards: the checkerboard ([`Checkerboard`]: its geometry and frame convention), the
+//! ChArUco board ([`super::charuco::CharucoBoard`]), either as a [`Board`], and the `[board]` table of
+//! `cell.toml` that names one.
 //!
 //! # Board frame
 //!
@@ -19,11 +20,16 @@
 //!
 //! ```toml
 //! [board]
-//! cols = 9          # inner corners along the board x axis
-//! rows = 6          # inner corners along the board y axis
-//! square_m = 0.03   # square edge, metres
+//! type = "checkerboard"   # optional: the default
+//! cols = 9                # inner corners along the board x axis
+//! rows = 6                # inner corners along the board y axis
+//! square_m = 0.03         # square edge, metres
 //! ```
+//!
+//! or a ChArUco board (`type = "charuco"`, keys in [`super::charuco`]). An unknown `type`, an unknown key
+//! and a value out of range are errors naming the key.
 
+use super::charuco::CharucoBoard;
 use crate::error::{Error, Result};
 use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
@@ -128,23 +134,22 @@ impl Checkerboard {
         Some((a as i64 + b as i64) % 2 == 0)
     }
 
-    /// Reads the optional `[board]` table from a manifest's extra keys; `path` names `cell.toml` in errors.
-    pub fn from_manifest_extra(extra: &toml::Table, path: &Path) -> Result<Option<Self>> {
-        let Some(v) = extra.get("board") else {
-            return Ok(None);
-        };
-        let b: Checkerboard = v.clone().try_into().map_err(|e: toml::de::Error| {
-            Error::format(
-                path,
+    /// Reads the checkerboard keys of a `[board]` table (`type` already checked); the message names the
+    /// key.
+    fn from_table(t: &toml::Table) -> std::result::Result<Self, String> {
+        let mut t = t.clone();
+        t.remove("type");
+        let b: Checkerboard = toml::Value::Table(t)
+            .try_into()
+            .map_err(|e: toml::de::Error| {
                 format!(
-                    "[board]: {} (expected cols, rows: inner corner counts; square_m: metres)",
+                    "{} (a checkerboard has cols, rows: inner corner counts; square_m: metres; \
+                     type = \"charuco\" for a ChArUco board)",
                     e.message()
-                ),
-            )
-        })?;
-        b.validate()
-            .map_err(|m| Error::format(path, format!("[board]: {m}")))?;
-        Ok(Some(b))
+                )
+            })?;
+        b.validate()?;
+        Ok(b)
     }
 
     /// The `[board]` table as it is written to `cell.toml`.
@@ -166,6 +171,114 @@ impl fmt::Display for Checkerboard {
             self.rows,
             self.square_m * 1e3
         )
+    }
+}
+
+/// A calibration board: a checkerboard or a ChArUco board.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "lowercase")]
+pub enum Board {
+    /// A plain checkerboard: every inner corner must be seen ([`Checkerboard`]).
+    Checkerboard(Checkerboard),
+    /// A ChArUco board: markers in the white squares identify each corner, so partial views count
+    /// ([`CharucoBoard`]).
+    Charuco(CharucoBoard),
+}
+
+/// The values of `type` in a `[board]` table.
+pub const BOARD_TYPES: &[&str] = &["checkerboard", "charuco"];
+
+impl Board {
+    /// Reads the optional `[board]` table from a manifest's extra keys; `path` names `cell.toml` in
+    /// errors, which also name the key. `type` is `"checkerboard"` (the default) or `"charuco"`.
+    pub fn from_manifest_extra(extra: &toml::Table, path: &Path) -> Result<Option<Self>> {
+        let Some(v) = extra.get("board") else {
+            return Ok(None);
+        };
+        let bad = |m: String| Error::format(path, format!("[board]: {m}"));
+        let Some(t) = v.as_table() else {
+            return Err(bad(format!("must be a table, found {v}")));
+        };
+        let kind = match t.get("type") {
+            None => "checkerboard",
+            Some(toml::Value::String(k)) if BOARD_TYPES.contains(&k.as_str()) => k.as_str(),
+            Some(k) => {
+                return Err(bad(format!(
+                    "`type` = {k} is not a board type; expected \"checkerboard\" (the default) or \"charuco\""
+                )))
+            }
+        };
+        Ok(Some(if kind == "charuco" {
+            Board::Charuco(CharucoBoard::from_table(t).map_err(|(_, m)| bad(m))?)
+        } else {
+            Board::Checkerboard(Checkerboard::from_table(t).map_err(bad)?)
+        }))
+    }
+
+    /// The `[board]` table as it is written to `cell.toml` (a checkerboard without `type`, as before
+    /// ChArUco boards).
+    pub fn to_toml(&self) -> toml::Value {
+        match self {
+            Board::Checkerboard(b) => b.to_toml(),
+            Board::Charuco(b) => b.to_toml(),
+        }
+    }
+
+    /// `checkerboard` or `charuco`.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Board::Checkerboard(_) => "checkerboard",
+            Board::Charuco(_) => "charuco",
+        }
+    }
+
+    /// Square edge, metres.
+    pub fn square_m(&self) -> f64 {
+        match self {
+            Board::Checkerboard(b) => b.square_m,
+            Board::Charuco(b) => b.square_m,
+        }
+    }
+
+    /// Number of corners on the board (a ChArUco view may show fewer).
+    pub fn corner_count(&self) -> usize {
+        match self {
+            Board::Checkerboard(b) => b.corner_count(),
+            Board::Charuco(b) => b.corner_count(),
+        }
+    }
+
+    /// Corner `id` in the board frame (metres, `z = 0`): for a checkerboard the row-major inner corner, for
+    /// a ChArUco board OpenCV's chessboard corner id. `None` beyond the board.
+    pub fn corner_point(&self, id: u32) -> Option<Point3<f64>> {
+        match self {
+            Board::Checkerboard(b) => {
+                let (i, j) = (id % b.cols, id / b.cols);
+                (j < b.rows).then(|| Point3::new(i as f64 * b.square_m, j as f64 * b.square_m, 0.0))
+            }
+            Board::Charuco(b) => b.corner_point(id),
+        }
+    }
+}
+
+impl From<Checkerboard> for Board {
+    fn from(b: Checkerboard) -> Self {
+        Board::Checkerboard(b)
+    }
+}
+
+impl From<CharucoBoard> for Board {
+    fn from(b: CharucoBoard) -> Self {
+        Board::Charuco(b)
+    }
+}
+
+impl fmt::Display for Board {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Board::Checkerboard(b) => b.fmt(f),
+            Board::Charuco(b) => b.fmt(f),
+        }
     }
 }
 
@@ -247,25 +360,68 @@ mod tests {
 
     #[test]
     fn manifest_table_round_trip_and_errors() {
-        let b = Checkerboard::new(9, 6, 0.025).unwrap();
+        let p = Path::new("cell.toml");
+        let read = |text: &str| Board::from_manifest_extra(&toml::from_str(text).unwrap(), p);
+        let b = Board::from(Checkerboard::new(9, 6, 0.025).unwrap());
         let mut extra = toml::Table::new();
         extra.insert("board".into(), b.to_toml());
-        let p = Path::new("cell.toml");
+        assert_eq!(Board::from_manifest_extra(&extra, p).unwrap(), Some(b));
         assert_eq!(
-            Checkerboard::from_manifest_extra(&extra, p).unwrap(),
-            Some(b)
-        );
-        assert_eq!(
-            Checkerboard::from_manifest_extra(&toml::Table::new(), p).unwrap(),
+            Board::from_manifest_extra(&toml::Table::new(), p).unwrap(),
             None
         );
-        let bad: toml::Table = toml::from_str("[board]\ncols = 9\nrows = 6\n").unwrap();
-        let e = Checkerboard::from_manifest_extra(&bad, p)
+        // `type = "checkerboard"` is the default, and may be given.
+        assert_eq!(
+            read("[board]\ntype = \"checkerboard\"\ncols = 9\nrows = 6\nsquare_m = 0.025\n")
+                .unwrap(),
+            Some(b)
+        );
+        let e = read("[board]\ncols = 9\nrows = 6\n")
             .unwrap_err()
             .to_string();
         assert!(e.contains("cell.toml") && e.contains("square_m"), "{e}");
-        let bad: toml::Table =
-            toml::from_str("[board]\ncols = 9\nrows = 6\nsquare_m = 30\n").unwrap();
-        assert!(Checkerboard::from_manifest_extra(&bad, p).is_err());
+        assert!(read("[board]\ncols = 9\nrows = 6\nsquare_m = 30\n").is_err());
+        let e = read("[board]\ncols = 9\nrows = 6\nsquare_m = 0.03\nmarker_m = 0.02\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("marker_m") && e.contains("charuco"), "{e}");
+        let e = read("[board]\ntype = \"charuko\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`type`") && e.contains("\"charuco\""), "{e}");
+        // A ChArUco board.
+        let c = read(
+            "[board]\ntype = \"charuco\"\nsquares_x = 5\nsquares_y = 7\nsquare_m = 0.04\nmarker_m = 0.02\n\
+             dictionary = \"DICT_6X6_250\"\n",
+        )
+        .unwrap()
+        .unwrap();
+        assert_eq!(c.kind(), "charuco");
+        assert_eq!(c.corner_count(), 24);
+        let mut extra = toml::Table::new();
+        extra.insert("board".into(), c.to_toml());
+        assert_eq!(Board::from_manifest_extra(&extra, p).unwrap(), Some(c));
+        let e = read(
+            "[board]\ntype = \"charuco\"\nsquares_x = 5\nsquares_y = 7\nsquare_m = 0.04\nmarker_m = 0.05\n\
+             dictionary = \"DICT_6X6_250\"\n",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("cell.toml") && e.contains("[board]") && e.contains("`marker_m`"),
+            "{e}"
+        );
+        let e = read("[board]\ntype = \"charuco\"\ncols = 9\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("unknown key `cols`"), "{e}");
+        // JSON carries the type.
+        let j = serde_json::to_value(c).unwrap();
+        assert_eq!(j["type"], "charuco");
+        assert_eq!(j["dictionary"], "DICT_6X6_250");
+        assert_eq!(serde_json::from_value::<Board>(j).unwrap(), c);
+        assert_eq!(serde_json::to_value(b).unwrap()["type"], "checkerboard");
+        assert_eq!(b.corner_point(10), Some(Point3::new(0.025, 0.025, 0.0)));
+        assert_eq!(b.corner_point(54), None);
     }
 }

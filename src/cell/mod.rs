@@ -22,9 +22,11 @@
 //! (e.g. `[priors]`) are kept and written back unchanged. See `docs/cell-format.md`.
 
 pub mod board;
+pub mod charuco;
 pub mod fiducial;
 pub mod markers;
-pub use board::Checkerboard;
+pub use board::{Board, Checkerboard};
+pub use charuco::CharucoBoard;
 pub use fiducial::MarkerTarget;
 pub use markers::MarkerDictionary;
 

@@ -22,9 +22,9 @@ pub struct Args {
     /// Board poses in the camera T_cam_board (from any tool), CSV with a header, rows matched by frame id.
     #[arg(long, required_unless_present = "images", conflicts_with = "images")]
     pub target_poses: Option<PathBuf>,
-    /// Instead of --target-poses: a directory of checkerboard images named by frame id (<frame>.png, .jpg,
-    /// ...); the board is found in each and its pose solved (needs --board, --square, --intrinsics and the
-    /// `vision` feature).
+    /// Instead of --target-poses: a directory of board images named by frame id (<frame>.png, .jpg, ...);
+    /// the board is found in each and its pose solved (needs --board or --charuco, --square, --intrinsics
+    /// and the `vision` feature; a ChArUco board may be partly in view).
     #[arg(long, value_name = "DIR")]
     pub images: Option<PathBuf>,
     #[command(flatten)]
@@ -164,8 +164,16 @@ fn board_poses_from_images(
     for line in obs.rejected_lines() {
         eprintln!("warning: {line}; frame left out");
     }
+    let corners = match board {
+        depthcal::cell::Board::Charuco(_) => format!(
+            ", {}-{} corners per view",
+            obs.found.iter().map(|o| o.corners).min().unwrap_or(0),
+            obs.found.iter().map(|o| o.corners).max().unwrap_or(0)
+        ),
+        depthcal::cell::Board::Checkerboard(_) => String::new(),
+    };
     eprintln!(
-        "board ({board}) found in {} of {} images, PnP RMS {:.3} px (worst {:.3} px)",
+        "board ({board}) found in {} of {} images{corners}, PnP RMS {:.3} px (worst {:.3} px)",
         obs.found.len(),
         images.len(),
         (obs.found.iter().map(|o| o.rms_px * o.rms_px).sum::<f64>() / obs.found.len() as f64)

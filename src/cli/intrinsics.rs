@@ -1,5 +1,6 @@
-//! `depthcal intrinsics IMAGES... --board COLSxROWS --square SIZE`: camera intrinsics from checkerboard
-//! images (needs the `vision` feature).
+//! `depthcal intrinsics IMAGES... --board COLSxROWS --square SIZE` (or `--charuco SQUARES_XxSQUARES_Y
+//! --square SIZE --charuco-marker SIZE --charuco-dict NAME`): camera intrinsics from checkerboard or
+//! ChArUco images (needs the `vision` feature).
 
 use super::vision_args::BoardArgs;
 use clap::Args as ClapArgs;
@@ -8,7 +9,8 @@ use std::path::PathBuf;
 /// Arguments of `depthcal intrinsics`.
 #[derive(ClapArgs)]
 pub struct Args {
-    /// Images of the checkerboard from one camera (PNG, JPEG, ...), one view each.
+    /// Images of the board from one camera (PNG, JPEG, ...), one view each (a ChArUco board may be partly
+    /// in view).
     #[arg(required = true, num_args = 1..)]
     pub images: Vec<PathBuf>,
     #[command(flatten)]
@@ -25,7 +27,8 @@ pub struct Args {
     /// Keep the principal point at the image centre.
     #[arg(long)]
     pub fix_principal_point: bool,
-    /// cornerSubPix half window, pixels (default: 40% of the corner spacing, at most 11).
+    /// cornerSubPix half window, pixels (default: checkerboard 40% of the corner spacing, ChArUco 80% of
+    /// the gap to the markers; at most 11).
     #[arg(long, value_name = "PX")]
     pub subpix_window: Option<u32>,
     /// Also try OpenCV's sector-based detector where the classic one fails.
@@ -74,6 +77,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     cfg.fix_principal_point |= a.fix_principal_point;
     if a.subpix_window.is_some() {
         cfg.corners.subpix_half_window_px = a.subpix_window;
+        cfg.charuco.subpix_half_window_px = a.subpix_window;
     }
     cfg.corners.sector_based_fallback |= a.sector_based;
     let c = calibrate_intrinsics(&a.images, &board, &cfg)?;
@@ -127,9 +131,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         i.model, i.coeffs[0], i.coeffs[1], i.coeffs[2], i.coeffs[3], i.coeffs[4]
     );
     println!();
-    println!("{:<48} {:>10} {:>10}", "view", "RMS [px]", "max [px]");
+    println!(
+        "{:<48} {:>10} {:>10} {:>8}",
+        "view", "RMS [px]", "max [px]", "corners"
+    );
     for v in &c.views {
-        println!("{:<48} {:>10.4} {:>10.4}", v.name, v.rms_px, v.max_px);
+        println!(
+            "{:<48} {:>10.4} {:>10.4} {:>8}",
+            v.name, v.rms_px, v.max_px, v.corners
+        );
     }
     for (n, r) in &c.rejected {
         println!("{n:<48} REJECTED: {r}");

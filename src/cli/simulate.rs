@@ -33,8 +33,10 @@ pub struct Args {
     /// Do not render colour images.
     #[arg(long)]
     pub no_color: bool,
-    /// Put a checkerboard (COLSxROWS inner corners) on the table, clear of objects; written as [board] in
-    /// cell.toml and its pose in ground_truth.json (square edge from --square, default 0.03 m).
+    /// Put a checkerboard (--board COLSxROWS inner corners, --square edge, default 9x6 of 0.03 m) or a
+    /// ChArUco board (--charuco SQUARES_XxSQUARES_Y, --square, --charuco-marker, --charuco-dict, default
+    /// 7x5 squares of 0.04 m, 0.03 m DICT_4X4_50 markers) on the table, clear of objects; written as
+    /// [board] in cell.toml and its pose in ground_truth.json.
     #[command(flatten)]
     pub board: super::vision_args::BoardArgs,
     /// Put N square fiducial markers (ids 0..N) on the table near its centre, clear of objects and of the
@@ -107,11 +109,32 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     if a.board.given() {
         let mut b = cfg.scene.board.clone().unwrap_or_default();
-        if let Some((c, r)) = a.board.board {
-            (b.cols, b.rows) = (c, r);
+        if a.board.board.is_some() {
+            b.charuco = None;
         }
-        if let Some(sq) = a.board.square {
-            b.square_m = sq;
+        if a.board.charuco.is_some() && b.charuco.is_none() {
+            b.charuco = Some(depthcal::sim::board::DEFAULT_CHARUCO);
+        }
+        if let Some(c) = &mut b.charuco {
+            if let Some((x, y)) = a.board.charuco {
+                (c.squares_x, c.squares_y) = (x, y);
+            }
+            if let Some(sq) = a.board.square {
+                c.square_m = sq;
+            }
+            if let Some(m) = a.board.charuco_marker {
+                c.marker_m = m;
+            }
+            if let Some(d) = &a.board.charuco_dict {
+                c.dictionary = d.parse().context("--charuco-dict")?;
+            }
+        } else {
+            if let Some((c, r)) = a.board.board {
+                (b.cols, b.rows) = (c, r);
+            }
+            if let Some(sq) = a.board.square {
+                b.square_m = sq;
+            }
         }
         cfg.scene.board = Some(b);
     }

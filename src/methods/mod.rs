@@ -11,7 +11,7 @@ pub use run::{calibrate_with_method, compare_methods, Comparison, MethodOutcome,
 
 use crate::calibration::initializer::{GlobalRegistration, Initializer, UserGuess};
 use crate::calibration::robot_to_robot::CalibrateConfig;
-use crate::cell::{Cell, Checkerboard, MarkerTarget};
+use crate::cell::{Board, Cell, MarkerTarget};
 use crate::error::{Error, Result};
 use crate::io::read_matrix_file;
 use serde::Serialize;
@@ -204,7 +204,7 @@ pub fn available(cell: &Cell) -> Vec<(Method, Option<String>)> {
             None
         }
     };
-    let board = match Checkerboard::from_manifest_extra(&cell.manifest.extra, &manifest) {
+    let board = match Board::from_manifest_extra(&cell.manifest.extra, &manifest) {
         Ok(Some(_)) => None,
         Ok(None) => Some("no [board] in cell.toml".to_string()),
         Err(e) => Some(e.to_string()),

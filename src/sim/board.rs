@@ -1,21 +1,38 @@
-//! A printed checkerboard lying on the table, for the checkerboard workflow (hand-eye from images,
-//! robot-to-robot by checkerboard) with exact ground truth.
+//! A printed checkerboard or ChArUco board lying on the table, for the board workflow (hand-eye from
+//! images, robot-to-robot by board) with exact ground truth.
 //!
 //! The board is a sheet of zero thickness on the table top (it changes the colour image, not the depth).
-//! Its frame follows [`Checkerboard`]: origin at inner corner 0, `x` along a row, `z` into the board, here
-//! straight down into the table, so that a camera above sees the printed side. Objects are kept off the
-//! sheet ([`SimBoard::overlaps_disc`]) so that views from above see the whole pattern.
+//! Its frame follows [`Checkerboard`] (origin at inner corner 0) or [`CharucoBoard`] (origin at the outer
+//! top-left corner, OpenCV 4.6's): `x` along a row, `z` into the board, here straight down into the table,
+//! so that a camera above sees the printed side. Objects are kept off the sheet
+//! ([`SimBoard::overlaps_disc`]) so that views from above see the whole pattern.
+//!
+//! A ChArUco board is printed as OpenCV's `CharucoBoard::draw` draws it: top-left square black, a marker
+//! of the board's dictionary in each white square, ids row-major, upright (the codes are OpenCV's, from
+//! [`super::marker::marker_code`]; a `vision` test compares the rendering with OpenCV's own image).
 //!
 //! In the colour image a pixel on the sheet gets the mean albedo of `supersample²` sub-pixel rays (each
 //! intersected with the table plane exactly), so edges are antialiased by their pixel coverage; the image
 //! is then blurred by a Gaussian of `blur_sigma_px` (optics) before the sensor grain of the renderer.
 
+use super::marker::marker_code;
 use crate::camera::Intrinsics;
-use crate::cell::Checkerboard;
+use crate::cell::{Board, CharucoBoard, Checkerboard};
 use crate::error::{Error, Result};
 use crate::geometry::Rng;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
+
+/// The ChArUco board `simulate --charuco` prints unless told otherwise: 7x5 squares of 40 mm with 30 mm
+/// `DICT_4X4_50` markers (4x4 markers have the largest cells for their size: 5 mm here, about 4 px at
+/// 0.75 m in a 640x480 view).
+pub const DEFAULT_CHARUCO: CharucoBoard = CharucoBoard {
+    squares_x: 7,
+    squares_y: 5,
+    square_m: 0.04,
+    marker_m: 0.03,
+    dictionary: crate::cell::MarkerDictionary::Aruco4x4_50,
+};
 
 /// Settings of the simulated board (metres, degrees). Every field has a default.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -39,6 +56,10 @@ pub struct SimBoardConfig {
     pub supersample: u32,
     /// Gaussian blur of the colour image (optics), pixels (default 0.7; 0 = none).
     pub blur_sigma_px: f64,
+    /// A ChArUco board instead of the checkerboard (default none): `squares_x`, `squares_y`, `square_m`,
+    /// `marker_m`, `dictionary` (one the simulator prints: `DICT_4X4_50`, `DICT_5X5_100`,
+    /// `DICT_6X6_250`, `tag36h11`). When given, `cols`, `rows` and `square_m` above are not used.
+    pub charuco: Option<CharucoBoard>,
 }
 
 impl Default for SimBoardConfig {
@@ -53,25 +74,40 @@ impl Default for SimBoardConfig {
             albedo: [0.04, 0.85],
             supersample: 6,
             blur_sigma_px: 0.7,
+            charuco: None,
         }
     }
 }
 
 impl SimBoardConfig {
-    /// The board geometry.
-    pub fn checkerboard(&self) -> Result<Checkerboard> {
-        Checkerboard::new(self.cols, self.rows, self.square_m).map_err(|e| match e {
-            Error::Config { msg, .. } => Error::Config {
-                field: "scene.board".into(),
-                msg,
-            },
-            e => e,
-        })
+    /// The board geometry: the ChArUco board when `charuco` is given, else the checkerboard.
+    pub fn board(&self) -> Result<Board> {
+        if let Some(c) = &self.charuco {
+            c.validate()
+                .map_err(|(k, msg)| Error::config(format!("scene.board.charuco.{k}"), msg))?;
+            return Ok(Board::Charuco(*c));
+        }
+        Checkerboard::new(self.cols, self.rows, self.square_m)
+            .map(Board::Checkerboard)
+            .map_err(|e| match e {
+                Error::Config { msg, .. } => Error::Config {
+                    field: "scene.board".into(),
+                    msg,
+                },
+                e => e,
+            })
     }
 
     /// Checks the ranges; the error names the field.
     pub fn validate(&self) -> Result<()> {
-        self.checkerboard()?;
+        self.board()?;
+        if let Some(c) = &self.charuco {
+            // The simulator prints the markers of its own dictionaries only.
+            for id in [0, c.marker_count() - 1] {
+                marker_code(&c.dictionary.to_string(), id)
+                    .map_err(|e| Error::config("scene.board.charuco.dictionary", e.to_string()))?;
+            }
+        }
         let bad = |f: &str, msg: String| {
             Err(Error::Config {
                 field: format!("scene.board.{f}"),
@@ -102,48 +138,68 @@ impl SimBoardConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SimBoard {
     /// The board geometry.
-    pub board: Checkerboard,
+    pub board: Board,
     /// Pose of the board frame in the world (table) frame, metres (`z` points down into the table).
     pub t_world_board: Isometry3<f64>,
     /// The settings it was made from.
     pub config: SimBoardConfig,
+    /// A ChArUco board's marker codes by id ([`marker_code`]'s bits; empty for a checkerboard).
+    pub codes: Vec<u64>,
+    /// Inner bits per side of the ChArUco markers (0 for a checkerboard).
+    pub bits: u32,
 }
 
 impl SimBoard {
     /// Places the board of `cfg` on the table top (`z = 0`) with a random yaw drawn from `rng`.
     pub fn place(cfg: &SimBoardConfig, rng: &mut Rng) -> Result<Self> {
         cfg.validate()?;
-        let board = cfg.checkerboard()?;
+        let board = cfg.board()?;
         let r = cfg.yaw_range_deg.to_radians();
         let yaw = rng.uniform(-r, r);
         // z down: a half turn about x, then the yaw about the world z.
         let rot = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw)
             * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI);
-        let s = board.square_m;
-        let half = Vector3::new(
-            (board.cols - 1) as f64 * s / 2.0,
-            (board.rows - 1) as f64 * s / 2.0,
-            0.0,
-        );
+        let [x0, x1, y0, y1] = pattern(&board);
+        let half = Vector3::new((x0 + x1) / 2.0, (y0 + y1) / 2.0, 0.0);
         let centre = Vector3::new(cfg.center_m[0], cfg.center_m[1], 0.0);
         let origin = centre - rot * half;
+        let (codes, bits) = match &board {
+            Board::Checkerboard(_) => (Vec::new(), 0),
+            Board::Charuco(c) => {
+                let name = c.dictionary.to_string();
+                let mut codes = Vec::with_capacity(c.marker_count() as usize);
+                let mut bits = 0;
+                for id in 0..c.marker_count() {
+                    let (n, code) = marker_code(&name, id)?;
+                    bits = n;
+                    codes.push(code);
+                }
+                (codes, bits)
+            }
+        };
         Ok(SimBoard {
             board,
             t_world_board: Isometry3::from_parts(Translation3::from(origin), rot),
             config: cfg.clone(),
+            codes,
+            bits,
         })
     }
 
     /// The sheet (pattern and margin) in board coordinates: `[x0, x1, y0, y1]`, metres.
     fn sheet(&self) -> [f64; 4] {
-        let s = self.board.square_m;
         let m = self.config.margin_m;
-        [
-            -s - m,
-            self.board.cols as f64 * s + m,
-            -s - m,
-            self.board.rows as f64 * s + m,
-        ]
+        let [x0, x1, y0, y1] = pattern(&self.board);
+        [x0 - m, x1 + m, y0 - m, y1 + m]
+    }
+
+    /// The printed colour at board point `(x, y)` (metres): `Some(true)` black, `Some(false)` white,
+    /// `None` off the pattern.
+    pub fn is_black(&self, x: f64, y: f64) -> Option<bool> {
+        match &self.board {
+            Board::Checkerboard(b) => b.is_black(x, y),
+            Board::Charuco(b) => charuco_is_black(b, &self.codes, self.bits, x, y),
+        }
     }
 
     /// True when a disc of radius `r` (metres) centred at table point `c` overlaps the sheet.
@@ -200,7 +256,7 @@ impl TablePrint for SimBoard {
             return None;
         }
         let [black, white] = self.config.albedo;
-        Some(match self.board.is_black(p.x, p.y) {
+        Some(match self.is_black(p.x, p.y) {
             Some(true) => black,
             _ => white,
         })
@@ -209,6 +265,56 @@ impl TablePrint for SimBoard {
     fn supersample(&self) -> u32 {
         self.config.supersample
     }
+}
+
+/// The pattern's extent in board coordinates, `[x0, x1, y0, y1]` (metres): a checkerboard's squares run
+/// from one square before inner corner 0, a ChArUco board's from its origin.
+fn pattern(board: &Board) -> [f64; 4] {
+    match board {
+        Board::Checkerboard(b) => {
+            let s = b.square_m;
+            [-s, b.cols as f64 * s, -s, b.rows as f64 * s]
+        }
+        Board::Charuco(b) => {
+            let [w, h] = b.size_m();
+            [0.0, w, 0.0, h]
+        }
+    }
+}
+
+/// The colour of a ChArUco board at board point `(x, y)` (metres; see [`CharucoBoard`] for the layout):
+/// `codes[id]` are the markers' bits (`bits²` of them, row-major from the top-left inner cell as printed,
+/// most significant first, 1 = white). `None` off the pattern.
+fn charuco_is_black(b: &CharucoBoard, codes: &[u64], bits: u32, x: f64, y: f64) -> Option<bool> {
+    let s = b.square_m;
+    let (fi, fj) = ((x / s).floor(), (y / s).floor());
+    if fi < 0.0 || fj < 0.0 || fi >= b.squares_x as f64 || fj >= b.squares_y as f64 {
+        return None;
+    }
+    let (i, j) = (fi as u32, fj as u32);
+    let Some(id) = b.marker_in_square(i, j) else {
+        return Some(true);
+    };
+    // Inside the square: white paper around a marker of `bits + 2` cells per side (one-cell black border).
+    let m = b.marker_m;
+    let (mx, my) = (
+        x - i as f64 * s - (s - m) / 2.0,
+        y - j as f64 * s - (s - m) / 2.0,
+    );
+    if mx < 0.0 || my < 0.0 || mx >= m || my >= m {
+        return Some(false);
+    }
+    let n = bits as i64;
+    let cell = m / (n + 2) as f64;
+    // Column from the left, row from the top as printed (board y runs down the print).
+    let c = ((mx / cell).floor() as i64).clamp(0, n + 1);
+    let r = ((my / cell).floor() as i64).clamp(0, n + 1);
+    if c == 0 || r == 0 || c == n + 1 || r == n + 1 {
+        return Some(true);
+    }
+    let k = (r - 1) * n + (c - 1);
+    let code = codes.get(id as usize)?;
+    Some((code >> (n * n - 1 - k)) & 1 == 0)
 }
 
 /// Checks the look of a print on the table (black and white albedo, sub-pixel rays, blur); the error
@@ -394,6 +500,112 @@ mod tests {
         let [u, v] = proj(0.045, 0.045);
         let g = b.pixel_albedo(&intr, &cam, u, v, &table).unwrap();
         assert!((g - 0.04).abs() < 1e-9, "{g}");
+    }
+
+    #[test]
+    fn charuco_layout_and_errors() {
+        let cfg = SimBoardConfig {
+            charuco: Some(DEFAULT_CHARUCO),
+            yaw_range_deg: 0.0,
+            ..Default::default()
+        };
+        let b = SimBoard::place(&cfg, &mut Rng::new(2)).unwrap();
+        let s = DEFAULT_CHARUCO.square_m;
+        // The pattern is centred where asked; square (0, 0) black, (1, 0) white with marker 0 in it.
+        let c = b.t_world_board * Point3::new(3.5 * s, 2.5 * s, 0.0);
+        assert!(c.coords.norm() < 1e-12);
+        assert_eq!(b.is_black(0.5 * s, 0.5 * s), Some(true));
+        assert_eq!(b.is_black(1.0 * s + 0.002, 0.5 * s), Some(false)); // white paper around the marker
+        assert_eq!(b.is_black(-0.001, 0.01), None);
+        assert_eq!(b.codes.len(), 17);
+        // Marker 0's border is black, its cells follow its code.
+        let (n, code) = marker_code("DICT_4X4_50", 0).unwrap();
+        let m = DEFAULT_CHARUCO.marker_m;
+        let cell = m / (n + 2) as f64;
+        let (x0, y0) = (s + (s - m) / 2.0, (s - m) / 2.0);
+        assert_eq!(b.is_black(x0 + cell / 2.0, y0 + 3.0 * cell), Some(true));
+        for r in 0..n {
+            for k in 0..n {
+                let bit = (code >> (n * n - 1 - (r * n + k))) & 1;
+                let at = b.is_black(x0 + (k as f64 + 1.5) * cell, y0 + (r as f64 + 1.5) * cell);
+                assert_eq!(at, Some(bit == 0), "cell {r},{k}");
+            }
+        }
+        // The simulator prints only its own dictionaries; a board too large for its dictionary is refused.
+        let bad = SimBoardConfig {
+            charuco: Some(CharucoBoard {
+                dictionary: crate::cell::MarkerDictionary::Aruco7x7_50,
+                ..DEFAULT_CHARUCO
+            }),
+            ..Default::default()
+        };
+        let e = bad.validate().unwrap_err().to_string();
+        assert!(e.contains("scene.board.charuco.dictionary"), "{e}");
+        let bad = SimBoardConfig {
+            charuco: Some(CharucoBoard {
+                marker_m: 0.05,
+                ..DEFAULT_CHARUCO
+            }),
+            ..Default::default()
+        };
+        let e = bad.validate().unwrap_err().to_string();
+        assert!(e.contains("scene.board.charuco.marker_m"), "{e}");
+    }
+
+    /// The simulator prints ChArUco boards as OpenCV 4.6's `CharucoBoard::draw` draws them: every square's
+    /// colour and every marker cell compared at its centre, for boards of odd and even rows and the four
+    /// dictionaries the simulator has.
+    #[cfg(feature = "vision")]
+    #[test]
+    fn charuco_print_is_opencvs_drawing() {
+        use crate::cell::MarkerDictionary as D;
+        for (sx, sy, sq, mk, dict) in [
+            (5, 7, 0.04, 0.02, D::Aruco6x6_250),
+            (4, 6, 0.04, 0.03, D::Aruco4x4_50),
+            (7, 5, 0.03, 0.024, D::Aruco5x5_100),
+            (3, 4, 0.05, 0.04, D::AprilTag36h11),
+        ] {
+            let cb = CharucoBoard::new(sx, sy, sq, mk, dict).unwrap();
+            let cfg = SimBoardConfig {
+                charuco: Some(cb),
+                yaw_range_deg: 0.0,
+                ..Default::default()
+            };
+            let b = SimBoard::place(&cfg, &mut Rng::new(1)).unwrap();
+            let px = 240u32;
+            let img = crate::vision::charuco_image(&cb, px, 0).unwrap();
+            let n = dict.bits() as f64;
+            let cell = mk / (n + 2.0);
+            let mut checked = 0;
+            let mut check = |x: f64, y: f64| {
+                let (u, v) = ((x / sq * px as f64) as u32, (y / sq * px as f64) as u32);
+                let theirs = img.at(u, v) < 128;
+                assert_eq!(
+                    b.is_black(x, y),
+                    Some(theirs),
+                    "{cb}: board point ({x}, {y})"
+                );
+                checked += 1;
+            };
+            for j in 0..sy {
+                for i in 0..sx {
+                    let (x0, y0) = (i as f64 * sq, j as f64 * sq);
+                    // The square's paper between its edge and the marker, and its centre.
+                    check(x0 + 0.25 * (sq - mk), y0 + 0.25 * (sq - mk));
+                    if cb.marker_in_square(i, j).is_none() {
+                        check(x0 + sq / 2.0, y0 + sq / 2.0);
+                        continue;
+                    }
+                    let (mx, my) = (x0 + (sq - mk) / 2.0, y0 + (sq - mk) / 2.0);
+                    for r in 0..(n as u32 + 2) {
+                        for c in 0..(n as u32 + 2) {
+                            check(mx + (c as f64 + 0.5) * cell, my + (r as f64 + 0.5) * cell);
+                        }
+                    }
+                }
+            }
+            assert!(checked > (sx * sy) as usize * 10, "{checked}");
+        }
     }
 
     #[test]

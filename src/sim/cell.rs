@@ -686,13 +686,17 @@ impl SimCell {
                     )
                 })
                 .collect();
-            extra.insert(
-                "board".into(),
-                json!({"cols": b.board.cols, "rows": b.board.rows, "square_m": b.board.square_m,
-                       "T_world_board": nested(&b.t_world_board),
-                       "T_base1_board": nested(&(t_b1_w * b.t_world_board)),
-                       "T_base_board": in_bases}),
-            );
+            // The board's own fields (`type`, then cols, rows, square_m or the ChArUco keys), then its poses.
+            let mut entry = serde_json::to_value(b.board).unwrap_or_else(|_| json!({}));
+            if let Some(o) = entry.as_object_mut() {
+                o.insert("T_world_board".into(), json!(nested(&b.t_world_board)));
+                o.insert(
+                    "T_base1_board".into(),
+                    json!(nested(&(t_b1_w * b.t_world_board))),
+                );
+                o.insert("T_base_board".into(), Value::Object(in_bases));
+            }
+            extra.insert("board".into(), entry);
         }
         if let Some(k) = &self.scene.markers {
             // Each marker's pose in the world, in base1 and in each robot's base.

@@ -121,7 +121,7 @@ fn validate(cfg: &ArucoConfig) -> Result<()> {
 }
 
 /// OpenCV's predefined dictionary for `dict`.
-fn dictionary(dict: MarkerDictionary) -> Result<Ptr<Dictionary>> {
+pub(crate) fn dictionary(dict: MarkerDictionary) -> Result<Ptr<Dictionary>> {
     opencv::aruco::get_predefined_dictionary_i32(dict.opencv_index()).map_err(|e| {
         cv::error(
             &format!("getPredefinedDictionary({})", dict.opencv_name()),
@@ -136,9 +136,20 @@ pub(crate) fn detect_aruco(
     dict: MarkerDictionary,
     cfg: &ArucoConfig,
 ) -> Result<Vec<(u32, [Point2<f64>; 4])>> {
-    validate(cfg)?;
     let mat = img.to_mat()?;
     let d = dictionary(dict)?;
+    let p = detector_parameters(cfg)?;
+    let mut corners: Vector<Vector<Point2f>> = Vector::new();
+    let mut ids: Vector<i32> = Vector::new();
+    let mut rejected: Vector<Vector<Point2f>> = Vector::new();
+    opencv::aruco::detect_markers(&mat, &d, &mut corners, &mut ids, &p, &mut rejected)
+        .map_err(|e| cv::error("aruco::detectMarkers", e))?;
+    markers_from_cv(&ids, &corners)
+}
+
+/// OpenCV's detector parameters for `cfg` (checked first).
+pub(crate) fn detector_parameters(cfg: &ArucoConfig) -> Result<Ptr<DetectorParameters>> {
+    validate(cfg)?;
     let mut p = DetectorParameters::create().map_err(|e| cv::error("DetectorParameters", e))?;
     p.set_adaptive_thresh_win_size_min(cfg.adaptive_thresh_win_size_min as i32);
     p.set_adaptive_thresh_win_size_max(cfg.adaptive_thresh_win_size_max as i32);
@@ -156,11 +167,14 @@ pub(crate) fn detect_aruco(
         ArucoRefinement::AprilTag => opencv::aruco::CORNER_REFINE_APRILTAG,
     });
     p.set_corner_refinement_win_size(cfg.corner_refinement_half_window_px as i32);
-    let mut corners: Vector<Vector<Point2f>> = Vector::new();
-    let mut ids: Vector<i32> = Vector::new();
-    let mut rejected: Vector<Vector<Point2f>> = Vector::new();
-    opencv::aruco::detect_markers(&mat, &d, &mut corners, &mut ids, &p, &mut rejected)
-        .map_err(|e| cv::error("aruco::detectMarkers", e))?;
+    Ok(p)
+}
+
+/// OpenCV's marker ids and corners as `(id, corners in ArUco order)`; errors on a malformed result.
+pub(crate) fn markers_from_cv(
+    ids: &Vector<i32>,
+    corners: &Vector<Vector<Point2f>>,
+) -> Result<Vec<(u32, [Point2<f64>; 4])>> {
     let mut out = Vec::with_capacity(ids.len());
     for (id, c) in ids.iter().zip(corners.iter()) {
         let c = cv::from_points2f(&c);

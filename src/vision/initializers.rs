@@ -10,7 +10,7 @@ use crate::calibration::marker_init::{
     marker_initializer_with, MarkerInitializer, MarkerMethodConfig,
 };
 use crate::calibration::robot_to_robot::robot_pair;
-use crate::cell::{Cell, CellRobot, Checkerboard};
+use crate::cell::{Board, Cell, CellRobot};
 use crate::error::Result;
 use crate::vision::observe::{board_in_robot_base, ObserveConfig};
 use std::path::PathBuf;
@@ -29,7 +29,7 @@ pub fn checkerboard_initializer(
 /// through the robot pose and hand-eye into the base, robustly averaged.
 pub fn board_from_images(
     r: &CellRobot,
-    board: &Checkerboard,
+    board: &Board,
     warnings: &mut Vec<String>,
 ) -> Result<BoardInBase> {
     let b = board_in_robot_base(r, board, &ObserveConfig::default())?;

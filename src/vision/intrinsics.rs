@@ -1,4 +1,6 @@
-//! Intrinsic calibration from checkerboard images (Zhang's method, OpenCV's `calibrateCamera`).
+//! Intrinsic calibration from checkerboard or ChArUco images (Zhang's method, OpenCV's `calibrateCamera`).
+//! A ChArUco view may show part of the board: each view brings its own corners (the object points of the
+//! corner ids found), as OpenCV's `calibrateCameraCharuco` does.
 //!
 //! The result is the crate's [`Intrinsics`] with model `brown_conrady`: OpenCV's `(k1, k2, p1, p2, k3)`
 //! are librealsense's `RS2_DISTORTION_BROWN_CONRADY` coefficients in the same order and formula, and both
@@ -8,12 +10,14 @@
 //! calibration needs at least [`IntrinsicsConfig::min_views`] views. The per-view and overall RMS
 //! reprojection errors are recomputed with the crate's own projection (they equal OpenCV's).
 
-use super::corners::{detect_checkerboard, CornerConfig};
+use super::board_view::detect_board;
+use super::charuco::CharucoConfig;
+use super::corners::CornerConfig;
 use super::cv;
 use super::image::{read_grey_image, GreyImage};
 use super::pnp::{reprojection_errors_of, rms_max};
 use crate::camera::{DistortionModel, Intrinsics};
-use crate::cell::Checkerboard;
+use crate::cell::Board;
 use crate::error::{Error, Result};
 use nalgebra::{Isometry3, Point2, Point3};
 use opencv::core::{Mat, Size, TermCriteria, TermCriteria_Type, Vector};
@@ -40,8 +44,10 @@ pub struct IntrinsicsConfig {
     pub epsilon: f64,
     /// Fewest views with the board found (default 3).
     pub min_views: usize,
-    /// Corner detection.
+    /// Checkerboard corner detection.
     pub corners: CornerConfig,
+    /// ChArUco corner detection.
+    pub charuco: CharucoConfig,
 }
 
 impl Default for IntrinsicsConfig {
@@ -55,6 +61,7 @@ impl Default for IntrinsicsConfig {
             epsilon: 1e-12,
             min_views: 3,
             corners: CornerConfig::default(),
+            charuco: CharucoConfig::default(),
         }
     }
 }
@@ -68,6 +75,8 @@ pub struct ViewResidual {
     pub rms_px: f64,
     /// Largest corner reprojection error, pixels.
     pub max_px: f64,
+    /// Corners of the view used (a ChArUco view may show part of the board).
+    pub corners: usize,
     /// The board pose in the camera, metres.
     #[serde(skip)]
     pub t_cam_board: Isometry3<f64>,
@@ -89,32 +98,48 @@ pub struct IntrinsicCalibration {
     pub sigma: [f64; 9],
 }
 
-/// Calibrates from corners already detected: `views` are `(name, corners)` in [`Checkerboard`] order,
-/// `(width, height)` the image size in pixels.
-pub fn calibrate_from_corners(
+/// One view of a planar target: its points in the image and on the target.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TargetView {
+    /// The view's name (its image's path as given), for results and errors.
+    pub name: String,
+    /// Pixel coordinates of the target points seen (`(0, 0)` = centre of the top-left pixel).
+    pub image_points: Vec<Point2<f64>>,
+    /// The same points in the target frame, metres (`z = 0`).
+    pub object_points: Vec<Point3<f64>>,
+}
+
+/// Calibrates from any planar target whose points are all seen in every view: `object` are its points
+/// (target frame, `z = 0`, metres) and each view's image points are in the same order.
+pub fn calibrate_from_points(
     views: &[(String, Vec<Point2<f64>>)],
-    board: &Checkerboard,
+    object: &[Point3<f64>],
     width: u32,
     height: u32,
     cfg: &IntrinsicsConfig,
 ) -> Result<IntrinsicCalibration> {
-    for (name, c) in views {
-        if c.len() != board.corner_count() {
-            return Err(Error::InvalidInput(format!(
-                "{name}: {} corners for a board of {} inner corners",
-                c.len(),
-                board.corner_count()
-            )));
-        }
+    if let Some((name, c)) = views.iter().find(|(_, c)| c.len() != object.len()) {
+        return Err(Error::InvalidInput(format!(
+            "{name}: {} image points for {} target points",
+            c.len(),
+            object.len()
+        )));
     }
-    calibrate_from_points(views, &board.object_points(), width, height, cfg)
+    let views: Vec<TargetView> = views
+        .iter()
+        .map(|(name, c)| TargetView {
+            name: name.clone(),
+            image_points: c.clone(),
+            object_points: object.to_vec(),
+        })
+        .collect();
+    calibrate_from_views(&views, width, height, cfg)
 }
 
-/// Calibrates from any planar target: `object` are its points (target frame, `z = 0`, metres) and each
-/// view's image points are in the same order.
-pub fn calibrate_from_points(
-    views: &[(String, Vec<Point2<f64>>)],
-    object: &[Point3<f64>],
+/// Calibrates from views that each see their own points of a planar target (e.g. the ChArUco corners
+/// found in each image); every view needs at least 4 points. `(width, height)` is the image size, pixels.
+pub fn calibrate_from_views(
+    views: &[TargetView],
     width: u32,
     height: u32,
     cfg: &IntrinsicsConfig,
@@ -126,17 +151,25 @@ pub fn calibrate_from_points(
             views.len()
         )));
     }
-    if let Some((name, c)) = views.iter().find(|(_, c)| c.len() != object.len()) {
+    if let Some(v) = views
+        .iter()
+        .find(|v| v.image_points.len() != v.object_points.len() || v.image_points.len() < 4)
+    {
         return Err(Error::InvalidInput(format!(
-            "{name}: {} image points for {} target points",
-            c.len(),
-            object.len()
+            "{}: {} image points for {} target points (need the same number, at least 4)",
+            v.name,
+            v.image_points.len(),
+            v.object_points.len()
         )));
     }
-    let obj1 = cv::points3f(object);
-    let obj: Vector<Vector<opencv::core::Point3f>> = views.iter().map(|_| obj1.clone()).collect();
-    let img: Vector<Vector<opencv::core::Point2f>> =
-        views.iter().map(|(_, c)| cv::points2f(c)).collect();
+    let obj: Vector<Vector<opencv::core::Point3f>> = views
+        .iter()
+        .map(|v| cv::points3f(&v.object_points))
+        .collect();
+    let img: Vector<Vector<opencv::core::Point2f>> = views
+        .iter()
+        .map(|v| cv::points2f(&v.image_points))
+        .collect();
     let mut flags = 0;
     if cfg.fix_aspect_ratio {
         flags |= opencv::calib3d::CALIB_FIX_ASPECT_RATIO;
@@ -198,18 +231,19 @@ pub fn calibrate_from_points(
         .map_err(|m| Error::Failed(format!("calibrateCamera gave unusable intrinsics: {m}")))?;
     let mut all = Vec::new();
     let mut out = Vec::with_capacity(views.len());
-    for (i, (name, c)) in views.iter().enumerate() {
+    for (i, v) in views.iter().enumerate() {
         let t = cv::isometry_from_rt(
             &rvecs.get(i).map_err(|e| cv::error("rvecs", e))?,
             &tvecs.get(i).map_err(|e| cv::error("tvecs", e))?,
         )?;
-        let e = reprojection_errors_of(c, object, &intrinsics, &t);
+        let e = reprojection_errors_of(&v.image_points, &v.object_points, &intrinsics, &t);
         let (rms_px, max_px) = rms_max(&e);
         all.extend(e);
         out.push(ViewResidual {
-            name: name.clone(),
+            name: v.name.clone(),
             rms_px,
             max_px,
+            corners: v.image_points.len(),
             t_cam_board: t,
         });
     }
@@ -231,15 +265,15 @@ pub fn calibrate_from_points(
     })
 }
 
-/// An image with its corners, or why the board was not found.
-type Detected = std::result::Result<(GreyImage, Vec<Point2<f64>>), String>;
+/// An image with the board's view, or why the board was not found.
+type Detected = std::result::Result<(GreyImage, TargetView), String>;
 
 /// Reads the images, finds the board in each (in parallel) and calibrates. Images that cannot be read or
 /// where the board is not found are rejected (named in the result); images of another size than the first
-/// readable one are an error naming both.
+/// readable one are an error naming both. A ChArUco view counts with the corners it shows.
 pub fn calibrate_intrinsics(
     paths: &[PathBuf],
-    board: &Checkerboard,
+    board: &Board,
     cfg: &IntrinsicsConfig,
 ) -> Result<IntrinsicCalibration> {
     if paths.is_empty() {
@@ -251,10 +285,19 @@ pub fn calibrate_intrinsics(
             let name = p.display().to_string();
             let r = (|| -> Result<Detected> {
                 let img = read_grey_image(p)?;
-                Ok(match detect_checkerboard(&img, board, &cfg.corners)? {
-                    Some(c) => Ok((img, c.points)),
-                    None => Err(format!("board ({board}) not found")),
-                })
+                Ok(
+                    match detect_board(&img, board, &cfg.corners, &cfg.charuco)? {
+                        Some(c) => {
+                            let v = TargetView {
+                                name: name.clone(),
+                                image_points: c.image_points,
+                                object_points: c.object_points,
+                            };
+                            Ok((img, v))
+                        }
+                        None => Err(format!("board ({board}) not found")),
+                    },
+                )
             })();
             match r {
                 Ok(x) => (name, x),
@@ -267,7 +310,7 @@ pub fn calibrate_intrinsics(
     let mut rejected = Vec::new();
     for (name, r) in detected {
         match r {
-            Ok((img, c)) => {
+            Ok((img, v)) => {
                 match &size {
                     None => size = Some((img.width, img.height, name.clone())),
                     Some((w, h, first)) if (*w, *h) != (img.width, img.height) => {
@@ -279,7 +322,7 @@ pub fn calibrate_intrinsics(
                     }
                     _ => {}
                 }
-                views.push((name, c));
+                views.push(v);
             }
             Err(reason) => rejected.push((name, reason)),
         }
@@ -309,7 +352,7 @@ pub fn calibrate_intrinsics(
             }
         )));
     }
-    let mut r = calibrate_from_corners(&views, board, w, h, cfg)?;
+    let mut r = calibrate_from_views(&views, w, h, cfg)?;
     r.rejected = rejected;
     Ok(r)
 }

@@ -1,5 +1,6 @@
 //! The image side of calibration (cargo feature `vision`): checkerboard inner corners with subpixel
-//! refinement ([`corners`]), intrinsic calibration by Zhang's method ([`intrinsics`]), the board pose in
+//! refinement ([`corners`]), ChArUco corners with their ids, from whole or partial views ([`charuco`]),
+//! either board's view ([`board_view`]), intrinsic calibration by Zhang's method ([`intrinsics`]), the board pose in
 //! each camera by PnP ([`pnp`]), and the board seen by a whole set of images or by a cell's robots
 //! ([`observe`]); square fiducial markers, ArUco and AprilTag ([`markers`]), and their poses in a cell's
 //! frames with depth ([`marker_sightings`]); 2D keypoint features (SIFT, ORB, AKAZE), their matches and the
@@ -7,15 +8,17 @@
 //!
 //! OpenCV (through the `opencv` crate) does the image work; its types stay inside this module. The public
 //! API takes and returns nalgebra types, [`GreyImage`] and the crate's own [`Intrinsics`] and
-//! [`Checkerboard`]: pixels follow librealsense and OpenCV alike (`(0, 0)` is the centre of the top-left
+//! [`Board`]: pixels follow librealsense and OpenCV alike (`(0, 0)` is the centre of the top-left
 //! pixel), lengths are metres.
 //!
 //! [`Intrinsics`]: crate::camera::Intrinsics
-//! [`Checkerboard`]: crate::cell::Checkerboard
+//! [`Board`]: crate::cell::Board
 
 pub mod annotate;
 pub mod apriltag;
 pub mod aruco;
+pub mod board_view;
+pub mod charuco;
 pub mod circles;
 pub mod corners;
 mod cv;
@@ -34,6 +37,8 @@ pub mod pnp;
 pub use annotate::write_marker_annotation;
 pub use apriltag::AprilTagConfig;
 pub use aruco::{dictionary_bits, ArucoConfig, ArucoRefinement};
+pub use board_view::{detect_board, BoardView};
+pub use charuco::{charuco_image, detect_charuco, CharucoConfig, CharucoCorners};
 pub use corners::{detect_checkerboard, BoardCorners, CornerConfig};
 pub use features::{
     detect_features, detect_features_masked, fit_homography, knn_match, match_features,

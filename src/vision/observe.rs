@@ -1,12 +1,14 @@
 //! The board seen by a set of images: per frame `T_cam_board` (detection + PnP), the images matched to
 //! frame ids, and the board pose in a cell robot's base from its colour images.
 
-use super::corners::{detect_checkerboard, CornerConfig};
+use super::board_view::detect_board;
+use super::charuco::CharucoConfig;
+use super::corners::CornerConfig;
 use super::image::read_grey_image;
-use super::pnp::board_pose;
+use super::pnp::pose_of_points;
 use crate::calibration::average::{average_poses, AverageConfig, PoseAverage};
 use crate::camera::Intrinsics;
-use crate::cell::{CellRobot, Checkerboard};
+use crate::cell::{Board, CellRobot};
 use crate::error::{Error, Result};
 use nalgebra::Isometry3;
 use rayon::prelude::*;
@@ -17,8 +19,10 @@ use std::path::{Path, PathBuf};
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ObserveConfig {
-    /// Corner detection.
+    /// Checkerboard corner detection.
     pub corners: CornerConfig,
+    /// ChArUco corner detection.
+    pub charuco: CharucoConfig,
     /// A view whose PnP RMS reprojection error exceeds this is rejected (a wrong detection or a bad
     /// intrinsics file), pixels. Default 2.0.
     pub max_rms_px: f64,
@@ -28,6 +32,7 @@ impl Default for ObserveConfig {
     fn default() -> Self {
         ObserveConfig {
             corners: CornerConfig::default(),
+            charuco: CharucoConfig::default(),
             max_rms_px: 2.0,
         }
     }
@@ -46,6 +51,12 @@ pub struct BoardObservation {
     pub rms_px: f64,
     /// Which detector found the corners.
     pub detector: &'static str,
+    /// Corners found (a ChArUco view may show part of the board).
+    pub corners: usize,
+    /// The corners found, pixels (`(0, 0)` = centre of the top-left pixel).
+    pub image_points: Vec<nalgebra::Point2<f64>>,
+    /// The same corners in the board frame, metres.
+    pub object_points: Vec<nalgebra::Point3<f64>>,
 }
 
 /// The result of [`observe_board`].
@@ -67,13 +78,14 @@ impl BoardObservations {
     }
 }
 
-/// Finds the board in each frame's image (in parallel) and solves its pose in the camera. `images` are
-/// `(frame id, image file)`. Images of another size than `intr` are an error naming the file; frames whose
-/// image has no board, or whose PnP error exceeds `cfg.max_rms_px`, are rejected; it is an error when
-/// the board is found in no image (the message names them all).
+/// Finds the board in each frame's image (in parallel) and solves its pose in the camera from the corners
+/// found (a ChArUco board may be partly in view). `images` are `(frame id, image file)`. Images of another
+/// size than `intr` are an error naming the file; frames whose image has no board, or whose PnP error
+/// exceeds `cfg.max_rms_px`, are rejected; it is an error when the board is found in no image (the message
+/// names them all).
 pub fn observe_board(
     images: &[(String, PathBuf)],
-    board: &Checkerboard,
+    board: &Board,
     intr: &Intrinsics,
     cfg: &ObserveConfig,
 ) -> Result<BoardObservations> {
@@ -96,10 +108,10 @@ pub fn observe_board(
                     ),
                 ));
             }
-            let Some(c) = detect_checkerboard(&img, board, &cfg.corners)? else {
+            let Some(c) = detect_board(&img, board, &cfg.corners, &cfg.charuco)? else {
                 return Ok(Err(format!("board ({board}) not found")));
             };
-            let pose = match board_pose(&c.points, board, intr) {
+            let pose = match pose_of_points(&c.image_points, &c.object_points, intr) {
                 Ok(p) => p,
                 Err(e) => return Ok(Err(format!("PnP failed: {e}"))),
             };
@@ -115,6 +127,9 @@ pub fn observe_board(
                 t_cam_board: pose.t_cam_board,
                 rms_px: pose.rms_px,
                 detector: c.detector,
+                corners: c.len(),
+                image_points: c.image_points,
+                object_points: c.object_points,
             }))
         })
         .collect();
@@ -223,7 +238,7 @@ pub struct RobotBoardPose {
 /// Errors when the robot has no colour images, or the board is found in no frame (naming the frames).
 pub fn board_in_robot_base(
     robot: &CellRobot,
-    board: &Checkerboard,
+    board: &Board,
     cfg: &ObserveConfig,
 ) -> Result<RobotBoardPose> {
     let mut images = Vec::with_capacity(robot.frames.len());

@@ -16,6 +16,9 @@
 //!   residual `Eᵢ = Z⁻¹ · T_base_ee_i · X · T_cam_board_i` (see [`refine`]), first with a Cauchy kernel,
 //!   then outlier frames are rejected and the inliers refined again with a Huber kernel.
 //!
+//! * **Reprojection** (optional, [`reprojection`]): from a solution, `X` and `Z` refined on the reprojection
+//!   error of the board's corners through the chain, when the corners are at hand (board images).
+//!
 //! Eye-to-hand (camera fixed in the cell, board on the flange): pass `T_board_cam_i = T_cam_board_i⁻¹` as
 //! `t_cam_board`; the solver then returns `T_ee_board` in `t_ee_cam` and `T_base_cam` in `t_base_board`.
 //!
@@ -35,6 +38,7 @@
 pub mod ax_xb;
 pub mod ax_zb;
 pub mod refine;
+pub mod reprojection;
 
 use crate::calibration::average::{
     average_poses, rotation_angle_between, AverageConfig, PoseAverage,
