@@ -63,8 +63,9 @@ pub fn profile<'py>(
     };
     let init = iso(init, "init")?;
     let truth = iso(truth, "truth")?;
-    let given = |o: Option<&Bound<'py, PyAny>>| o.filter(|x| !x.is_none());
-    let clouds = match (synthetic, given(source), given(target)) {
+    let source = source.filter(|x| !x.is_none());
+    let target = target.filter(|x| !x.is_none());
+    let clouds = match (synthetic, source, target) {
         (Some(_), None, None) => None,
         (None, Some(s), Some(t)) => Some((
             crate::register::cloud_arg(s, "source", false)?,

@@ -15,7 +15,7 @@ use crate::calibration::robot_to_robot::{robot_pair, Calibration, FusedCell};
 use crate::cell::{Cell, CellRobot};
 use crate::error::Result;
 use crate::geometry::robot_formats::Frames;
-use crate::geometry::transform::isometry_to_nested;
+use crate::report::{PoseReport, SigmaReport};
 use nalgebra::Isometry3;
 use serde_json::json;
 
@@ -80,20 +80,20 @@ pub(super) fn reach(c: &Calibration, fused: &FusedCell) -> f64 {
         .max(1e-6)
 }
 
-/// The key figures of a calibration as the page embeds them (and `--json` prints them): `transform`
-/// (row-major, metres), `sigma` (`rotation_deg`, `translation_mm`), `fitness`, `inlier_rmse`, `overlap`,
-/// `converged`, `trusted`, `reasons`, `suggestions`, `warnings`, `initial_transform`.
+/// The key figures of a calibration as the page embeds them, with the names and forms of `--json`
+/// ([`crate::report::CalibrationReport`]): `transform` (a [`PoseReport`]), `sigma` (`rotation_deg`,
+/// `translation_m`), `fitness`, `inlier_rmse_m`, `overlap`, `converged`, `trusted`, `reasons`,
+/// `suggestions`, `warnings`, `initial.transform`.
 pub(super) fn summary(c: &Calibration) -> serde_json::Value {
-    let (r, t) = sigma(&c.covariance, 1e3);
     json!({
         "reference": c.reference,
         "other": c.other,
         "method": c.method,
         "refined": c.refined,
-        "transform": isometry_to_nested(&c.transform),
-        "sigma": {"rotation_deg": r, "translation_mm": t},
+        "transform": PoseReport::new(&c.transform),
+        "sigma": SigmaReport::from_covariance(&c.covariance),
         "fitness": c.fitness,
-        "inlier_rmse": c.inlier_rmse,
+        "inlier_rmse_m": c.inlier_rmse,
         "overlap": c.overlap,
         "converged": c.converged,
         "degenerate": c.degeneracy.is_degenerate(),
@@ -101,7 +101,7 @@ pub(super) fn summary(c: &Calibration) -> serde_json::Value {
         "reasons": c.trust.reasons,
         "suggestions": c.trust.suggestions,
         "warnings": c.warnings,
-        "initial_transform": isometry_to_nested(&c.initial.transform),
+        "initial": {"transform": PoseReport::new(&c.initial.transform)},
         "fused_points": {"reference": c.fused_points[0], "other": c.fused_points[1]},
     })
 }

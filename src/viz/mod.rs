@@ -26,9 +26,9 @@ pub use calibration::calibration_report;
 pub use comparison::{comparison_report, MethodRun};
 pub use registration::registration_report;
 
+use crate::camera::{write_rgb_png, RgbImage};
 use crate::error::{Error, Result};
 use crate::index::KdIndex;
-use crate::sim::{write_rgb_png, RgbImage};
 use nalgebra::Isometry3;
 use render::{Canvas, Colouring};
 use residual::{nice_ceiling, point_to_plane, Histogram, ResidualStats};

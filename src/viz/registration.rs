@@ -10,8 +10,8 @@ use super::sections::{
 };
 use super::{finish, Placement, Report, TwoClouds};
 use crate::error::Result;
-use crate::geometry::transform::isometry_to_nested;
 use crate::registration::Registration;
+use crate::report::{PoseReport, SigmaReport};
 use crate::PointCloud;
 use serde_json::json;
 
@@ -185,14 +185,14 @@ pub fn registration_report(
         "summary": {
             "source": source_name,
             "target": target_name,
-            "transform": isometry_to_nested(&reg.transform),
-            "initial_transform": isometry_to_nested(&reg.initial),
+            "transform": PoseReport::new(&reg.transform),
+            "initial": {"transform": PoseReport::new(&reg.initial)},
             "fitness": reg.fitness,
-            "inlier_rmse": reg.inlier_rmse,
+            "inlier_rmse_m": reg.inlier_rmse,
             "overlap": reg.overlap,
             "converged": reg.converged,
             "iterations": reg.iterations,
-            "sigma": {"rotation_deg": sr, "translation": st},
+            "sigma": SigmaReport::from_covariance(&reg.covariance),
             "trusted": reg.trust.trusted,
             "reasons": reg.trust.reasons,
             "suggestions": reg.trust.suggestions,
