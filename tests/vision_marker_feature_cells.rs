@@ -10,14 +10,14 @@
 
 mod common;
 use common::{depthcal, scratch};
-use depthcal::calibration::feature_init::feature_initializer;
 use depthcal::calibration::initializer::{GlobalRegistration, Initializer};
-use depthcal::calibration::marker_init::marker_initializer;
 use depthcal::calibration::robot_to_robot::{
     fuse_cell, initialize_only, refine_cell, CalibrateConfig,
 };
 use depthcal::cell::Cell;
 use depthcal::sim::{SimCell, SimConfig, SimMarkersConfig};
+use depthcal::vision::initializers::feature_initializer;
+use depthcal::vision::initializers::marker_initializer;
 use std::path::{Path, PathBuf};
 
 /// A cell with three 4x4_50 markers near the table centre and textured objects and table, 12 frames per

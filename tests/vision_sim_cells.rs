@@ -11,15 +11,14 @@
 
 mod common;
 use common::scratch;
-use depthcal::calibration::board_init::{
-    checkerboard_initializer, BoardInBase, CheckerboardInitializer,
-};
+use depthcal::calibration::board_init::{BoardInBase, CheckerboardInitializer};
 use depthcal::calibration::handeye::{calibrate_hand_eye, HandEyeConfig, HandEyeFrame};
 use depthcal::calibration::initializer::GlobalRegistration;
 use depthcal::calibration::robot_to_robot::{calibrate, CalibrateConfig};
 use depthcal::cell::{Board, Cell, CellRobot, Checkerboard, GroundTruth};
 use depthcal::geometry::transform::{isometry_from_rows, pose_error};
 use depthcal::sim::{SimBoardConfig, SimCell, SimConfig};
+use depthcal::vision::initializers::checkerboard_initializer;
 use depthcal::vision::observe::{
     board_in_robot_base, observe_board, BoardObservations, ObserveConfig,
 };
