@@ -3,7 +3,9 @@
 
 use crate::convert;
 use crate::errors::{input_err, lib_err};
-use depthcal::geometry::pose::{isometry_to_abb, isometry_to_fanuc, isometry_to_ur, isometry_to_xyzquat, KukaPose};
+use depthcal::geometry::pose::{
+    isometry_to_abb, isometry_to_fanuc, isometry_to_ur, isometry_to_xyzquat, KukaPose,
+};
 use depthcal::geometry::robot_formats::{
     ros2_static_tf_command, transform_files as lib_transform_files, Frames,
 };
