@@ -14,34 +14,11 @@ use depthcal::calibration::handeye::reprojection::{
 };
 use depthcal::calibration::handeye::{calibrate_hand_eye, HandEyeConfig, HandEyeFrame};
 use depthcal::camera::Intrinsics;
-use depthcal::geometry::pose::xyzquat_to_isometry;
 use depthcal::vision::circles::{detect_circle_grid, CircleGrid};
 use depthcal::vision::intrinsics::{calibrate_from_points, IntrinsicsConfig};
 use depthcal::vision::pnp::{pose_of_points, reprojection_errors_of};
 use depthcal::vision::read_grey_image;
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
-
-fn read_pose(path: &std::path::Path) -> Isometry3<f64> {
-    let text = std::fs::read_to_string(path).unwrap();
-    let get = |k: &str| -> f64 {
-        text.lines()
-            .find_map(|l| l.strip_prefix(&format!("{k}:")))
-            .unwrap_or_else(|| panic!("{}: no {k}", path.display()))
-            .trim()
-            .parse()
-            .unwrap()
-    };
-    xyzquat_to_isometry(&[
-        get("x"),
-        get("y"),
-        get("z"),
-        get("qx"),
-        get("qy"),
-        get("qz"),
-        get("qw"),
-    ])
-    .unwrap()
-}
 
 #[test]
 fn circle_grid_set_hand_eye_matches_the_reference() {
@@ -159,7 +136,7 @@ fn hand_eye(
         pnp_poses.push(pose.t_cam_board);
         frames.push(HandEyeFrame {
             id: k.clone(),
-            t_base_ee: read_pose(&dir.join(format!("poses/{k}.yaml"))),
+            t_base_ee: common::industrial_pose(&dir.join(format!("poses/{k}.yaml"))),
             t_cam_board: pose.t_cam_board,
         });
     }
