@@ -4,8 +4,8 @@
 //! `cargo bench --bench registration` (set `RAYON_NUM_THREADS=2` to pin the thread count).
 
 use criterion::{criterion_group, criterion_main, Criterion};
+use depthcal::features::nearest::nearest_both_ways;
 use depthcal::features::{compute_fpfh, FpfhConfig};
-use depthcal::index::feature::nearest_both_ways;
 use depthcal::index::KdIndex;
 use depthcal::preprocess::normals::{estimate_normals, orient, NormalConfig, Orientation};
 use depthcal::preprocess::scale::{estimate_spacing, voxel_for_target};

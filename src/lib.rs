@@ -27,6 +27,7 @@ pub mod fusion;
 pub mod geometry;
 pub mod index;
 pub mod io;
+pub mod methods;
 pub mod preprocess;
 pub mod registration;
 pub mod report;

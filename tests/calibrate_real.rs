@@ -9,7 +9,7 @@ use depthcal::calibration::initializer::GlobalRegistration;
 use depthcal::calibration::robot_to_robot::{calibrate, CalibrateConfig};
 use depthcal::camera::Intrinsics;
 use depthcal::cell::{Cell, CellManifest, GroundTruth, RobotEntry};
-use depthcal::geometry::pose::{write_poses, PoseFormat, PoseRecord};
+use depthcal::io::poses::{write_poses, PoseFormat, PoseRecord};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use std::path::Path;
 

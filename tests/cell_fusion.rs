@@ -12,9 +12,9 @@ use depthcal::cell::{Cell, CellManifest, HandEyeSpec, RobotEntry};
 use depthcal::fusion::{
     frame_points_in_base, fuse_frames, fuse_robot, FrameInput, FuseConfig, FusedCloud,
 };
-use depthcal::geometry::pose::{write_poses, PoseFormat, PoseRecord};
 use depthcal::geometry::transform::{isometry_from_rows, pose_error};
 use depthcal::index::KdIndex;
+use depthcal::io::poses::{write_poses, PoseFormat, PoseRecord};
 use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3, Vector6};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -789,7 +789,7 @@ fn convert_command_round_trips_pose_files() {
     let (ok, back_text, _) = run(&["convert", quat.to_str().unwrap(), "--to", "kuka"]);
     assert!(ok);
     let (_, back) =
-        depthcal::geometry::pose::parse_poses(&back_text, Some(PoseFormat::Kuka), Path::new("-"))
+        depthcal::io::poses::parse_poses(&back_text, Some(PoseFormat::Kuka), Path::new("-"))
             .unwrap();
     for (a, b) in recs.iter().zip(&back) {
         let (r, d) = pose_error(&a.pose, &b.pose);

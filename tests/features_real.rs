@@ -328,7 +328,7 @@ fn match_command_errors_and_no_homography() {
     let blank = out_dir.join("blank.png");
     depthcal::sim::write_rgb_png(
         &blank,
-        &depthcal::sim::RgbImage {
+        &depthcal::camera::RgbImage {
             width: 64,
             height: 48,
             data: vec![100; 64 * 48 * 3],

@@ -12,8 +12,8 @@ use depthcal::calibration::handeye::{
     calibrate_hand_eye, frames_from_records, motion_pairs, solve_closed_form, HandEyeConfig,
     HandEyeFrame, HandEyeMethod,
 };
-use depthcal::geometry::pose::{parse_poses, PoseFormat, PoseRecord};
 use depthcal::geometry::Rng;
+use depthcal::io::poses::{parse_poses, PoseFormat, PoseRecord};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use std::path::{Path, PathBuf};
 
@@ -253,13 +253,13 @@ fn write_protocol_data() {
         };
         let robot = rec(&|f| f.t_base_ee);
         let target = rec(&|f| f.t_cam_board);
-        depthcal::geometry::pose::write_poses(
+        depthcal::io::poses::write_poses(
             out.join(format!("trial{trial:03}_robot.csv")),
             &robot,
             PoseFormat::Matrix,
         )
         .unwrap();
-        depthcal::geometry::pose::write_poses(
+        depthcal::io::poses::write_poses(
             out.join(format!("trial{trial:03}_target.csv")),
             &target,
             PoseFormat::Matrix,
@@ -684,9 +684,8 @@ fn command_json_and_text() {
     let (frames, x, z) = simulate(21, 12, false);
     let rp = dir.join("robot.csv");
     let tp = dir.join("board.csv");
-    depthcal::geometry::pose::write_poses(&rp, &records(&frames, true), PoseFormat::Kuka).unwrap();
-    depthcal::geometry::pose::write_poses(&tp, &records(&frames, false), PoseFormat::Xyzquat)
-        .unwrap();
+    depthcal::io::poses::write_poses(&rp, &records(&frames, true), PoseFormat::Kuka).unwrap();
+    depthcal::io::poses::write_poses(&tp, &records(&frames, false), PoseFormat::Xyzquat).unwrap();
     let out = depthcal(&[
         "handeye",
         "--robot-poses",
@@ -782,7 +781,7 @@ fn command_json_and_text() {
     // A frame missing on one side: exit code 1 and a message naming file and frame.
     let mut target = records(&frames, false);
     target.pop();
-    depthcal::geometry::pose::write_poses(&tp, &target, PoseFormat::Matrix).unwrap();
+    depthcal::io::poses::write_poses(&tp, &target, PoseFormat::Matrix).unwrap();
     let out = depthcal(&[
         "handeye",
         "--robot-poses",

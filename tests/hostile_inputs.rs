@@ -793,7 +793,7 @@ fn matrix_reader_refuses_garbage_without_panicking() {
 
 #[test]
 fn pose_csv_and_manifest_refuse_garbage_with_line_or_field() {
-    use depthcal::geometry::pose::parse_poses;
+    use depthcal::io::poses::parse_poses;
     let p = Path::new("r/poses.csv");
     let e = parse_poses(
         "frame,x_mm,y_mm,z_mm,a_deg,b_deg,c_deg\n001,1,2,3,nan,0,0\n",

@@ -8,8 +8,9 @@ mod common;
 use common::{depthcal, listing};
 
 use depthcal::cell::Cell;
-use depthcal::geometry::pose::{KukaPose, PoseFormat};
+use depthcal::geometry::pose::KukaPose;
 use depthcal::geometry::transform::pose_error;
+use depthcal::io::poses::PoseFormat;
 use std::io::Write;
 use std::path::Path;
 

@@ -5,13 +5,13 @@
 mod common;
 use common::{depthcal, scratch};
 use depthcal::cell::Cell;
-use depthcal::geometry::pose::{
-    format_poses, isometry_to_xyzquat, parse_poses, read_poses, write_poses, KukaPose, PoseFormat,
-    PoseRecord,
-};
+use depthcal::geometry::pose::{isometry_to_xyzquat, KukaPose};
 use depthcal::geometry::robot_formats::{self as rf, Frames};
 use depthcal::geometry::transform::{pose_error, random_isometry};
 use depthcal::geometry::Rng;
+use depthcal::io::poses::{
+    format_poses, parse_poses, read_poses, write_poses, PoseFormat, PoseRecord,
+};
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 use std::collections::HashMap;
 use std::f64::consts::{FRAC_PI_2, PI};

@@ -1,6 +1,6 @@
 #![no_main]
 //! The pose CSV reader (format from the header, and each format forced).
-use depthcal::geometry::pose::{parse_poses, PoseFormat};
+use depthcal::io::poses::{parse_poses, PoseFormat};
 use libfuzzer_sys::fuzz_target;
 use std::path::Path;
 

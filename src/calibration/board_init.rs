@@ -151,13 +151,18 @@ impl Initializer for CheckerboardInitializer {
     }
 }
 
-/// The checkerboard initialiser of a cell: each robot's `T_base_board` from `given` (`(robot name,
-/// handeye JSON)`, see [`BoardInBase::from_handeye_json`]) or else, with the `vision` feature, from its
-/// colour images of the board that `cell.toml`'s `[board]` table describes. Returns the initialiser and
-/// warnings (frames where the board was not found).
-pub fn checkerboard_initializer(
+/// Finds a robot's board pose in its colour images (`depthcal::vision::initializers` with the `vision`
+/// feature; [`board_needs_vision`] without), noting frames it could not use in the warnings.
+pub type BoardFinder<'a> =
+    dyn FnMut(&CellRobot, &Board, &mut Vec<String>) -> Result<BoardInBase> + 'a;
+
+/// The checkerboard initialiser of a cell: each robot's `T_base_board` from `given` (robot name → a
+/// `depthcal handeye --json` file) or, for robots without one, found by `find` in the robot's colour
+/// images with the cell's `[board]`. Returns it with warnings about frames not used.
+pub fn checkerboard_initializer_with(
     cell: &Cell,
     given: &[(String, PathBuf)],
+    find: &mut BoardFinder<'_>,
 ) -> Result<(CheckerboardInitializer, Vec<String>)> {
     let (reference, other) = robot_pair(cell)?;
     let manifest = cell.dir.join(crate::cell::MANIFEST_FILE);
@@ -178,40 +183,23 @@ pub fn checkerboard_initializer(
                 r.name
             )));
         };
-        board_from_images(r, &board, &mut warnings)
+        find(r, &board, &mut warnings)
     };
     let reference = side(reference)?;
     let other = side(other)?;
     Ok((CheckerboardInitializer { reference, other }, warnings))
 }
 
-#[cfg(feature = "vision")]
-fn board_from_images(
-    r: &CellRobot,
-    board: &Board,
-    warnings: &mut Vec<String>,
-) -> Result<BoardInBase> {
-    use crate::vision::observe::{board_in_robot_base, ObserveConfig};
-    let b = board_in_robot_base(r, board, &ObserveConfig::default())?;
-    for line in b.observations.rejected_lines() {
-        warnings.push(format!("robot {:?}: {line}", r.name));
-    }
-    let n = b.frames.len();
-    Ok(BoardInBase::from_average(
-        &r.name,
-        &b.average,
-        &format!("{n} colour images"),
-    ))
-}
-
-#[cfg(not(feature = "vision"))]
-fn board_from_images(
+/// The [`BoardFinder`] of a build without the `vision` feature: an error saying how to get one.
+pub fn board_needs_vision(
     r: &CellRobot,
     _board: &Board,
     _warnings: &mut Vec<String>,
 ) -> Result<BoardInBase> {
     Err(Error::InvalidInput(format!(
-        "robot {:?}: finding the board in its colour images needs depthcal built with the `vision`          feature (OpenCV): `cargo build --release --features vision`; or give the board pose from an          earlier hand-eye run (calibrate --board-pose {}=HANDEYE.json)",
+        "robot {:?}: finding the board in its colour images needs depthcal built with the `vision` \
+         feature (OpenCV): `cargo build --release --features vision`; or give the board pose from an \
+         earlier hand-eye run (calibrate --board-pose {}=HANDEYE.json)",
         r.name, r.name
     )))
 }

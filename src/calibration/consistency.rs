@@ -1221,7 +1221,7 @@ mod tests {
     /// Builds the 7-Scenes real-depth cell of `tests/calibrate_real.rs` (interleaved frames) in `dir`.
     fn build_seven_scenes(data: &Path, dir: &Path) {
         use crate::cell::{CellManifest, RobotEntry};
-        use crate::geometry::pose::{write_poses, PoseFormat, PoseRecord};
+        use crate::io::poses::{write_poses, PoseFormat, PoseRecord};
         let iso = |t: [f64; 3], r: [f64; 3]| {
             Isometry3::from_parts(
                 Translation3::new(t[0], t[1], t[2]),

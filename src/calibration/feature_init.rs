@@ -1,7 +1,7 @@
 //! Robot-to-robot by 2D visual features lifted to 3D with depth.
 //!
 //! Keypoints of both robots' colour images are lifted to 3D with the aligned depth and brought into each
-//! robot's base; matched across the robots (`vision` feature: `crate::vision::feature_lift`) they are
+//! robot's base; matched across the robots (`vision` feature: `depthcal::vision::feature_lift`) they are
 //! 3D-3D correspondences base2 → base1, from which RANSAC over minimal samples of three with the
 //! closed-form rigid fit (Arun / Umeyama without scale) finds `T_base1_base2`, refitted on all inliers
 //! ([`ransac_rigid`]).
@@ -374,38 +374,6 @@ impl Initializer for FeatureInitializer {
             ambiguity: None,
         })
     }
-}
-
-/// The feature initialiser of a cell: both robots' keypoints found, lifted and matched (`vision` feature).
-/// Returns it with notes about frames that gave no usable keypoints.
-pub fn feature_initializer(
-    cell: &crate::cell::Cell,
-    cfg: &FeatureMethodConfig,
-) -> Result<(FeatureInitializer, Vec<String>)> {
-    let (reference, other) = crate::calibration::robot_to_robot::robot_pair(cell)?;
-    matched_correspondences(reference, other, cfg)
-}
-
-#[cfg(feature = "vision")]
-fn matched_correspondences(
-    reference: &crate::cell::CellRobot,
-    other: &crate::cell::CellRobot,
-    cfg: &FeatureMethodConfig,
-) -> Result<(FeatureInitializer, Vec<String>)> {
-    crate::vision::feature_lift::feature_correspondences(reference, other, cfg)
-}
-
-#[cfg(not(feature = "vision"))]
-fn matched_correspondences(
-    reference: &crate::cell::CellRobot,
-    _other: &crate::cell::CellRobot,
-    _cfg: &FeatureMethodConfig,
-) -> Result<(FeatureInitializer, Vec<String>)> {
-    Err(Error::InvalidInput(format!(
-        "robot {:?}: keypoints in its colour images need depthcal built with the `vision` feature \
-         (OpenCV): `cargo build --release --features vision`",
-        reference.name
-    )))
 }
 
 #[cfg(test)]

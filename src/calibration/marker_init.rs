@@ -9,7 +9,7 @@
 //! of every marker both robots saw, in base2 onto base1 ([`MarkerInitializer::estimate`]); with one marker
 //! it is `T_base1_marker · T_base2_marker⁻¹`.
 //!
-//! Finding the markers in the colour images needs the `vision` feature ([`marker_initializer`]).
+//! Finding the markers in the colour images needs the `vision` feature (`depthcal::vision::initializers`).
 
 use crate::calibration::average::{average_poses, AverageConfig, PoseAverage};
 use crate::calibration::board_init::{BoardInBase, CheckerboardInitializer};
@@ -468,11 +468,21 @@ impl Initializer for MarkerInitializer {
     }
 }
 
-/// The marker initialiser of a cell: each robot's markers found in its colour images (`vision` feature)
-/// with the `[markers]` table of `cell.toml`. Returns it with notes about frames and sightings not used.
-pub fn marker_initializer(
+/// Finds a robot's marker sightings in its colour images (`depthcal::vision::initializers` with the
+/// `vision` feature; [`markers_need_vision`] without): the sightings and notes about frames not used.
+pub type SightingFinder<'a> = dyn FnMut(
+        &CellRobot,
+        &crate::cell::MarkerTarget,
+        &MarkerMethodConfig,
+    ) -> Result<(Vec<MarkerSighting>, Vec<String>)>
+    + 'a;
+
+/// The marker initialiser of a cell: each robot's markers found by `find` in its colour images with the
+/// `[markers]` table of `cell.toml`. Returns it with notes about frames and sightings not used.
+pub fn marker_initializer_with(
     cell: &crate::cell::Cell,
     cfg: &MarkerMethodConfig,
+    find: &mut SightingFinder<'_>,
 ) -> Result<(MarkerInitializer, Vec<String>)> {
     let (reference, other) = crate::calibration::robot_to_robot::robot_pair(cell)?;
     let manifest = cell.dir.join(crate::cell::MANIFEST_FILE);
@@ -487,7 +497,7 @@ pub fn marker_initializer(
     let mut notes = Vec::new();
     let mut sides = Vec::with_capacity(2);
     for r in [reference, other] {
-        let (sightings, n) = sightings_of(r, &target, cfg)?;
+        let (sightings, n) = find(r, &target, cfg)?;
         notes.extend(n.iter().map(|n| format!("robot {:?}: {n}", r.name)));
         let m = markers_in_base(r, &sightings, &|id| target.size_of(id), cfg)?;
         for k in &m {
@@ -527,18 +537,8 @@ pub fn marker_initializer(
     Ok((MarkerInitializer { reference, other }, notes))
 }
 
-#[cfg(feature = "vision")]
-fn sightings_of(
-    r: &CellRobot,
-    target: &crate::cell::MarkerTarget,
-    cfg: &MarkerMethodConfig,
-) -> Result<(Vec<MarkerSighting>, Vec<String>)> {
-    let s = crate::vision::marker_sightings::robot_marker_sightings(r, target, cfg)?;
-    Ok((s.sightings, s.notes))
-}
-
-#[cfg(not(feature = "vision"))]
-fn sightings_of(
+/// The [`SightingFinder`] of a build without the `vision` feature: an error saying how to get one.
+pub fn markers_need_vision(
     r: &CellRobot,
     _target: &crate::cell::MarkerTarget,
     _cfg: &MarkerMethodConfig,

@@ -8,6 +8,7 @@
 pub mod depth;
 pub mod distortion;
 pub mod intrinsics;
+pub mod rgb;
 pub mod view;
 
 pub use depth::{
@@ -18,4 +19,5 @@ pub use distortion::DistortionModel;
 pub use intrinsics::{
     check_image_size, Intrinsics, DEFAULT_DEPTH_SCALE, MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE,
 };
+pub use rgb::{write_rgb_png, RgbImage};
 pub use view::{DepthView, Seen};

@@ -21,13 +21,13 @@ pub mod rosbag;
 pub mod realsense;
 
 use crate::camera::{write_depth_png, DepthImage, Intrinsics};
+use crate::camera::{write_rgb_png, RgbImage};
 use crate::cell::{
     frame_path, read_hand_eye_file, Cell, CellManifest, HandEyeSpec, RobotEntry, FRAME_PLACEHOLDER,
     MANIFEST_FILE,
 };
 use crate::error::{Error, Result};
-use crate::geometry::pose::{parse_poses, read_poses, PoseFormat, PoseRecord};
-use crate::sim::{write_rgb_png, RgbImage};
+use crate::io::poses::{parse_poses, read_poses, PoseFormat, PoseRecord};
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;

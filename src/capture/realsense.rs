@@ -15,9 +15,9 @@
 //! Timestamps are librealsense's frame timestamps converted from milliseconds to seconds.
 
 use super::{FrameStamp, Recording, RecordingInfo, StreamFrames};
+use crate::camera::RgbImage;
 use crate::camera::{DepthImage, DistortionModel, Intrinsics};
 use crate::error::{Error, Result};
-use crate::sim::RgbImage;
 use realsense_sys as sys;
 use std::collections::{HashMap, HashSet};
 use std::ffi::{c_void, CStr, CString};

@@ -15,9 +15,9 @@
 //! `/device_0/sensor_0/option/Depth_Units/value`).
 
 use super::{FrameStamp, Recording, RecordingInfo, StreamFrames};
+use crate::camera::RgbImage;
 use crate::camera::{DepthImage, DistortionModel, Intrinsics, DEFAULT_DEPTH_SCALE};
 use crate::error::{Error, Result};
-use crate::sim::RgbImage;
 use rosbag::{ChunkRecord, IndexRecord, MessageRecord, RosBag};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashMap};

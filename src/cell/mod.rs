@@ -33,8 +33,8 @@ pub use markers::MarkerDictionary;
 use crate::camera::depth::read_depth_png_header;
 use crate::camera::{read_depth_png, DepthImage, Intrinsics};
 use crate::error::{Error, Result};
-use crate::geometry::pose::{read_poses, PoseFormat, PoseRecord};
 use crate::geometry::transform::{isometry_from_rows, isometry_to_nested, isometry_to_rows};
+use crate::io::poses::{read_poses, PoseFormat, PoseRecord};
 use nalgebra::Isometry3;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use std::path::{Path, PathBuf};
@@ -553,6 +553,27 @@ pub struct CellRobot {
     pub uncertainty: RobotUncertainty,
 }
 
+impl crate::fusion::DepthFrames for CellRobot {
+    fn robot_name(&self) -> &str {
+        &self.name
+    }
+    fn depth_intrinsics(&self) -> &Intrinsics {
+        &self.intrinsics
+    }
+    fn frame_count(&self) -> usize {
+        self.frames.len()
+    }
+    fn load_depth(&self, i: usize) -> Result<DepthImage> {
+        CellRobot::load_depth(self, i)
+    }
+    fn t_base_cam(&self, i: usize) -> Isometry3<f64> {
+        CellRobot::t_base_cam(self, i)
+    }
+    fn depth_path(&self, i: usize) -> &Path {
+        &self.frames[i].depth_path
+    }
+}
+
 impl CellRobot {
     /// `T_base_cam = T_base_ee · T_ee_cam` of frame `i`.
     pub fn t_base_cam(&self, i: usize) -> Isometry3<f64> {
@@ -899,26 +920,7 @@ impl Cell {
     }
 }
 
-/// Checks a ROS / TF frame id: 1 to 256 characters of ASCII letters, digits, `_`, `-`, `.` and `/`, at
-/// least one of them a letter or digit. Such a name is written into a launch file, a URDF and a YAML file
-/// without any quoting problem.
-pub fn check_frame_id(f: &str) -> std::result::Result<(), String> {
-    if f.is_empty() || f.len() > 256 {
-        return Err(format!("frame id {f:?} must have 1 to 256 characters"));
-    }
-    if !f
-        .chars()
-        .all(|c| c.is_ascii_alphanumeric() || "_-./".contains(c))
-    {
-        return Err(format!(
-            "frame id {f:?}: only ASCII letters, digits and _ - . / are allowed"
-        ));
-    }
-    if !f.chars().any(|c| c.is_ascii_alphanumeric()) {
-        return Err(format!("frame id {f:?} holds no letter or digit"));
-    }
-    Ok(())
-}
+pub use crate::geometry::robot_formats::check_frame_id;
 
 #[cfg(test)]
 mod tests;

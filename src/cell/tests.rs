@@ -1,7 +1,7 @@
 use super::*;
 use crate::camera::write_depth_png;
 use crate::fusion::tests::{ring_poses, test_camera, Scene};
-use crate::geometry::pose::write_poses;
+use crate::io::poses::write_poses;
 use nalgebra::{Translation3, UnitQuaternion};
 
 fn tmpdir(name: &str) -> PathBuf {

@@ -5,12 +5,12 @@ use super::output::{matrix4_text, spinner};
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
 use depthcal::calibration::robot_to_robot::{robot_pair, Calibration, FusedCell};
-use depthcal::calibration::run::calibrate_with_method;
 use depthcal::cell::Cell;
 use depthcal::geometry::pose::{isometry_to_xyzquat, KukaPose};
 use depthcal::geometry::robot_formats::{
     ros1_static_tf_command, ros2_static_tf_command, transform_files, Frames,
 };
+use depthcal::methods::calibrate_with_method;
 use depthcal::report::CalibrationReport;
 use std::path::{Path, PathBuf};
 use std::time::Instant;

@@ -26,7 +26,7 @@ pub struct Args {
     pub poses: Option<PathBuf>,
     /// The pose file's format (default: from its header).
     #[arg(long)]
-    pub pose_format: Option<depthcal::geometry::pose::PoseFormat>,
+    pub pose_format: Option<depthcal::io::poses::PoseFormat>,
     /// With --pose: how many frames to take at that pose (ids continue the robot's numbering).
     #[arg(long, default_value_t = 1, conflicts_with = "poses")]
     pub frames: usize,
@@ -69,7 +69,7 @@ pub fn parse_kuka(s: &str) -> anyhow::Result<nalgebra::Isometry3<f64>> {
         .map_err(|_| {
             anyhow::anyhow!("--pose {s:?}: expected 6 numbers x_mm,y_mm,z_mm,a_deg,b_deg,c_deg")
         })?;
-    let f = depthcal::geometry::pose::PoseFormat::Kuka;
+    let f = depthcal::io::poses::PoseFormat::Kuka;
     f.parse_values(&v)
         .map_err(|m| anyhow::anyhow!("--pose {s:?}: {m} (x_mm,y_mm,z_mm,a_deg,b_deg,c_deg)"))
 }
@@ -95,7 +95,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         append_frames, existing_frame_ids, next_frame_ids, AppendReport, NewFrame, PoseRows,
         RobotSetup,
     };
-    use depthcal::geometry::pose::PoseFormat;
+    use depthcal::io::poses::PoseFormat;
     use std::io::BufRead;
 
     if a.frames == 0 {

@@ -4,8 +4,8 @@
 use super::methods::{CalibrateSettings, Method};
 use anyhow::Result;
 use clap::Args as ClapArgs;
-use depthcal::calibration::run::{compare_methods, Comparison, MethodOutcome};
 use depthcal::cell::Cell;
+use depthcal::methods::{compare_methods, Comparison, MethodOutcome};
 use depthcal::report::ComparisonReport;
 use std::path::PathBuf;
 use std::time::Instant;

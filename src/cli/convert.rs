@@ -2,7 +2,7 @@
 //! vector, ABB x,y,z+q1..q4 and Fanuc XYZ-WPR rows.
 
 use clap::Args as ClapArgs;
-use depthcal::geometry::pose::{format_poses, read_poses, write_poses, PoseFormat};
+use depthcal::io::poses::{format_poses, read_poses, write_poses, PoseFormat};
 use std::path::PathBuf;
 
 /// Arguments of `depthcal convert`.

@@ -6,9 +6,8 @@ use clap::Args as ClapArgs;
 use depthcal::calibration::handeye::{
     calibrate_hand_eye, frames_from_records, HandEyeConfig, HandEyeMethod, HandEyeResult,
 };
-use depthcal::geometry::pose::{
-    format_from_header, isometry_to_xyzquat, read_poses, KukaPose, PoseFormat,
-};
+use depthcal::geometry::pose::{isometry_to_xyzquat, KukaPose};
+use depthcal::io::poses::{format_from_header, read_poses, PoseFormat};
 use depthcal::report::handeye::ResidualSummary;
 use depthcal::report::{HandEyeInputs, HandEyeReport};
 use nalgebra::Isometry3;
@@ -142,10 +141,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 fn board_poses_from_images(
     a: &Args,
     dir: &std::path::Path,
-    robot: &[depthcal::geometry::pose::PoseRecord],
-) -> anyhow::Result<Vec<depthcal::geometry::pose::PoseRecord>> {
+    robot: &[depthcal::io::poses::PoseRecord],
+) -> anyhow::Result<Vec<depthcal::io::poses::PoseRecord>> {
     use depthcal::camera::Intrinsics;
-    use depthcal::geometry::pose::{write_poses, PoseRecord};
+    use depthcal::io::poses::{write_poses, PoseRecord};
     use depthcal::vision::observe::{find_frame_images, observe_board, ObserveConfig};
     let board = a.board.board()?;
     let Some(ip) = &a.intrinsics else {
@@ -201,8 +200,8 @@ fn board_poses_from_images(
 fn board_poses_from_images(
     _a: &Args,
     _dir: &std::path::Path,
-    _robot: &[depthcal::geometry::pose::PoseRecord],
-) -> anyhow::Result<Vec<depthcal::geometry::pose::PoseRecord>> {
+    _robot: &[depthcal::io::poses::PoseRecord],
+) -> anyhow::Result<Vec<depthcal::io::poses::PoseRecord>> {
     anyhow::bail!(
         "depthcal handeye --images: {}",
         super::vision_args::WITHOUT_VISION
@@ -214,7 +213,7 @@ fn read_with_hint(
     path: &std::path::Path,
     format: PoseFormat,
     flag: &str,
-) -> anyhow::Result<Vec<depthcal::geometry::pose::PoseRecord>> {
+) -> anyhow::Result<Vec<depthcal::io::poses::PoseRecord>> {
     match read_poses(path, Some(format)) {
         Ok((_, r)) => Ok(r),
         Err(e) => {

@@ -6,7 +6,7 @@ use clap::{Args as ClapArgs, ValueEnum};
 use depthcal::capture::{
     import_recording, ImportReport, MatchConfig, MatchMode, PoseRows, Recording, RobotSetup,
 };
-use depthcal::geometry::pose::PoseFormat;
+use depthcal::io::poses::PoseFormat;
 use nalgebra::Isometry3;
 use std::path::{Path, PathBuf};
 

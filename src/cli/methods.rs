@@ -1,11 +1,11 @@
 //! The settings `calibrate` and `compare` share (the methods themselves are the library's
-//! `depthcal::calibration::methods`).
+//! `depthcal::methods`).
 
 use anyhow::Result;
 use depthcal::calibration::robot_to_robot::CalibrateConfig;
 use std::path::PathBuf;
 
-pub use depthcal::calibration::methods::{Method, MethodInputs};
+pub use depthcal::methods::{Method, MethodInputs};
 
 /// The settings `calibrate` and `compare` share.
 #[derive(clap::Args)]

@@ -73,6 +73,12 @@ pub fn run(a: Args) -> Result<()> {
     let source = read_cloud(&a.source)?;
     let target = read_cloud(&a.target)?;
     let read_ms = t_read.elapsed().as_secs_f64() * 1e3;
+    // The units warning now, before a registration that may take a while (the library adds it to the
+    // result's warnings too; it is not printed twice).
+    let early = depthcal::registration::extent::check_extents(&source, &target, cfg.voxel)?.units;
+    if let Some(u) = &early {
+        pb.suspend(|| eprintln!("warning: {u}"));
+    }
     let mut reg = register_with_progress(&source, &target, init.as_ref(), &cfg, &mut |stage| {
         pb.set_message(stage.to_string())
     })
@@ -94,7 +100,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     pb.finish_and_clear();
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
-    for w in &reg.warnings {
+    for w in reg.warnings.iter().filter(|w| Some(*w) != early.as_ref()) {
         eprintln!("warning: {w}");
     }
     if let (Some(out), false) = (&a.output, reg.trust.trusted) {

@@ -14,7 +14,6 @@
 
 use crate::camera::depth::{check_size, deproject_row};
 use crate::camera::{DeprojectConfig, DepthImage, DepthView, Intrinsics, RayTable};
-use crate::cell::CellRobot;
 use crate::error::{Error, Result};
 use crate::geometry::PointCloud;
 use crate::index::KdIndex;
@@ -778,21 +777,38 @@ fn check_not_empty(f: &FusedCloud, what: &str) -> Result<()> {
     Ok(())
 }
 
-/// Fuses all frames of a cell robot, reading the depth images in parallel. `progress` is called once per
+/// The depth frames of one robot as fusion needs them (a cell's robot, `depthcal::cell::CellRobot`,
+/// is one).
+pub trait DepthFrames: Sync {
+    /// The robot's name, for messages.
+    fn robot_name(&self) -> &str;
+    /// The depth camera's intrinsics.
+    fn depth_intrinsics(&self) -> &Intrinsics;
+    /// The number of frames.
+    fn frame_count(&self) -> usize;
+    /// Frame `i`'s depth image.
+    fn load_depth(&self, i: usize) -> Result<DepthImage>;
+    /// Frame `i`'s camera pose in the robot base, `T_base_ee · T_ee_cam` (metres).
+    fn t_base_cam(&self, i: usize) -> Isometry3<f64>;
+    /// Frame `i`'s depth file, for messages.
+    fn depth_path(&self, i: usize) -> &std::path::Path;
+}
+
+/// Fuses all frames of a robot, reading the depth images in parallel. `progress` is called once per
 /// finished frame with the number of frames done so far.
 pub fn fuse_robot(
-    robot: &CellRobot,
+    robot: &dyn DepthFrames,
     cfg: &FuseConfig,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<FusedCloud> {
     cfg.validate()?;
-    if robot.frames.is_empty() {
+    if robot.frame_count() == 0 {
         return Err(Error::InvalidInput(format!(
             "robot {:?} has no frames",
-            robot.name
+            robot.robot_name()
         )));
     }
-    let rays = RayTable::new(&robot.intrinsics);
+    let rays = RayTable::new(robot.depth_intrinsics());
     let first = robot.load_depth(0)?;
     let voxel = match cfg.voxel_size_m {
         Some(v) => v,
@@ -800,21 +816,21 @@ pub fn fuse_robot(
             let auto = |img: &DepthImage| {
                 auto_voxel_size(
                     img,
-                    &robot.intrinsics,
+                    robot.depth_intrinsics(),
                     &cfg.deproject,
                     cfg.auto_voxel_factor,
                 )
             };
             let mut found = auto(&first);
             let mut i = 1;
-            while found.is_none() && i < robot.frames.len() {
+            while found.is_none() && i < robot.frame_count() {
                 found = auto(&robot.load_depth(i)?);
                 i += 1;
             }
             found.ok_or_else(|| {
                 Error::InvalidInput(format!(
                     "robot {:?}: no frame has valid depth in the depth range; cannot choose a voxel size",
-                    robot.name
+                    robot.robot_name()
                 ))
             })?
         }
@@ -822,7 +838,7 @@ pub fn fuse_robot(
     let acc = VoxelFusion::new(voxel, cfg.deproject.clone(), cfg.crop)?;
     let done = AtomicUsize::new(0);
     let first = Mutex::new(Some(first));
-    let views = (0..robot.frames.len())
+    let views = (0..robot.frame_count())
         .into_par_iter()
         .map(|i| -> Result<Option<DepthView>> {
             let img = match if i == 0 {
@@ -833,21 +849,16 @@ pub fn fuse_robot(
                 Some(img) => img,
                 None => robot.load_depth(i)?,
             };
-            acc.add_frame(
-                &img,
-                &rays,
-                &robot.t_base_cam(i),
-                &robot.frames[i].depth_path,
-            )?;
+            acc.add_frame(&img, &rays, &robot.t_base_cam(i), robot.depth_path(i))?;
             progress(done.fetch_add(1, Ordering::Relaxed) + 1);
             Ok(cfg
                 .depth_views
-                .map(|b| DepthView::new(&img, &robot.intrinsics, &robot.t_base_cam(i), b)))
+                .map(|b| DepthView::new(&img, robot.depth_intrinsics(), &robot.t_base_cam(i), b)))
         })
         .collect::<Result<Vec<Option<DepthView>>>>()?;
     let mut fused = finish_fusion(acc.finish(), cfg)?;
     fused.views = views.into_iter().flatten().collect();
-    check_not_empty(&fused, &format!("robot {:?}", robot.name))?;
+    check_not_empty(&fused, &format!("robot {:?}", robot.robot_name()))?;
     Ok(fused)
 }
 

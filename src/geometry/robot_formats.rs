@@ -15,7 +15,6 @@
 //! Numbers are written with fixed decimals: metres, radians and quaternions 9 (1 nm, 1 nrad), the
 //! matrix 12, millimetres 6 and degrees 9.
 
-use crate::cell::check_frame_id;
 use crate::error::{Error, Result};
 use crate::geometry::pose::{
     isometry_to_abb, isometry_to_ur, isometry_to_xyzquat, rpy_from_rotation, KukaPose,
@@ -37,6 +36,27 @@ pub const KUKA_FILE: &str = "kuka_base.txt";
 pub const UR_FILE: &str = "ur_pose.txt";
 /// The file name of the ABB work object.
 pub const ABB_FILE: &str = "abb_wobj.txt";
+
+/// Checks a ROS / TF frame id: 1 to 256 characters of ASCII letters, digits, `_`, `-`, `.` and `/`, at
+/// least one of them a letter or digit. Such a name is written into a launch file, a URDF and a YAML file
+/// without any quoting problem.
+pub fn check_frame_id(f: &str) -> std::result::Result<(), String> {
+    if f.is_empty() || f.len() > 256 {
+        return Err(format!("frame id {f:?} must have 1 to 256 characters"));
+    }
+    if !f
+        .chars()
+        .all(|c| c.is_ascii_alphanumeric() || "_-./".contains(c))
+    {
+        return Err(format!(
+            "frame id {f:?}: only ASCII letters, digits and _ - . / are allowed"
+        ));
+    }
+    if !f.chars().any(|c| c.is_ascii_alphanumeric()) {
+        return Err(format!("frame id {f:?} holds no letter or digit"));
+    }
+    Ok(())
+}
 
 /// The parent (reference base) and child (other base) frame ids of the transform.
 #[derive(Clone, Debug, PartialEq, Eq)]

@@ -1,7 +1,6 @@
-//! Nearest-neighbour indexes: the 3-D kd-tree over positions ([`KdIndex`], kiddo) and exact nearest
-//! neighbours in the 33-D FPFH space ([`feature`]).
+//! Nearest-neighbour index over 3-D positions: the kd-tree [`KdIndex`] (kiddo). Nearest neighbours in
+//! the 33-D FPFH space are [`crate::features::nearest`].
 
-pub mod feature;
 mod kdtree;
 
 pub use kdtree::KdIndex;

@@ -1,4 +1,4 @@
-//! Reading and writing point clouds and transforms.
+//! Reading and writing point clouds, transforms and pose files.
 //!
 //! Formats are chosen by extension: `.ply` (ascii, binary little/big endian), `.pcd` (ascii, binary,
 //! binary_compressed), `.xyz`/`.txt`/`.pts` (whitespace or comma separated x y z per line, extra columns
@@ -9,6 +9,7 @@ pub mod matrix;
 mod npy;
 mod pcd;
 mod ply;
+pub mod poses;
 mod xyz;
 
 pub use atomic::write_atomically;

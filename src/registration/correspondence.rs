@@ -1,7 +1,7 @@
 //! Putative correspondences from feature-space nearest neighbours.
 
+use crate::features::nearest::nearest_both_ways;
 use crate::features::Fpfh;
-use crate::index::feature::nearest_both_ways;
 use serde::{Deserialize, Serialize};
 
 /// A putative match: source point `source` ↔ target point `target`.

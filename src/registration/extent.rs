@@ -54,7 +54,8 @@ pub fn scale_mismatch(source_extent: f64, target_extent: f64) -> Option<String> 
     } else {
         (target_extent, source_extent)
     };
-    if lo.is_nan() || lo <= 0.0 || hi / lo <= UNITS_RATIO {
+    // Written so that NaN extents give no warning.
+    if !(lo > 0.0 && hi / lo > UNITS_RATIO) {
         return None;
     }
     Some(format!(

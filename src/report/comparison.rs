@@ -2,7 +2,7 @@
 
 use super::calibration::InitialReport;
 use super::pose::{ErrorReport, PoseReport};
-use crate::calibration::run::{Comparison, MethodOutcome};
+use crate::methods::{Comparison, MethodOutcome};
 use serde::Serialize;
 
 /// The schema name and version of [`ComparisonReport`].

@@ -34,7 +34,6 @@ pub mod camera;
 pub mod cell;
 #[cfg(feature = "sim")]
 mod convert;
-pub mod image;
 pub mod marker;
 mod marker_codes;
 pub mod mesh;
@@ -46,12 +45,12 @@ pub mod render;
 #[cfg(feature = "sim")]
 pub mod scene;
 
+pub use crate::camera::{write_rgb_png, RgbImage};
 pub use analytic::{demo_scene, split_overlapping};
 pub use board::{SimBoard, SimBoardConfig, TablePrint};
 pub use camera::{Resolution, SimCamera};
 #[cfg(feature = "sim")]
 pub use cell::{simulate_cell, SimCell, SimConfig, SimRobot, WriteStats};
-pub use image::{write_rgb_png, RgbImage};
 pub use marker::{marker_code, SimMarker, SimMarkers, SimMarkersConfig};
 pub use mesh::{builtin_mesh, read_ply_mesh, MeshData, BUILTIN_MESHES};
 pub use noise::{NoiseConfig, NoiseLevel};

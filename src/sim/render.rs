@@ -19,7 +19,7 @@ use parry3d_f64::math::{Pose, Vector};
 use parry3d_f64::query::Ray;
 use rayon::prelude::*;
 
-pub use super::image::{write_rgb_png, RgbImage};
+pub use crate::camera::{write_rgb_png, RgbImage};
 
 /// A rendered view.
 #[derive(Clone, Debug)]

@@ -27,6 +27,7 @@ pub mod feature_lift;
 pub mod features;
 pub mod frames;
 pub mod image;
+pub mod initializers;
 pub mod intrinsics;
 pub mod marker_sightings;
 pub mod markers;

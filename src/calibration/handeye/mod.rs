@@ -44,8 +44,8 @@ use crate::calibration::average::{
     average_poses, rotation_angle_between, AverageConfig, PoseAverage,
 };
 use crate::error::{Error, Result};
-use crate::geometry::pose::PoseRecord;
 use crate::geometry::Rng;
+use crate::io::poses::PoseRecord;
 use nalgebra::{Isometry3, Matrix3, UnitQuaternion, Vector3};
 use refine::{frame_error, Kernel};
 use serde::{Deserialize, Serialize};

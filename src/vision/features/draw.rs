@@ -3,8 +3,8 @@
 
 use super::super::cv;
 use super::super::image::GreyImage;
+use crate::camera::RgbImage;
 use crate::error::{Error, Result};
-use crate::sim::RgbImage;
 use nalgebra::Point2;
 use opencv::core::{Mat, Point, Scalar, Vec3b};
 use opencv::imgproc::{circle, line, LINE_AA};

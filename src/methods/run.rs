@@ -1,7 +1,7 @@
 //! Calibrating a cell with a named method, and comparing every method the cell allows: what `depthcal
 //! calibrate` and `depthcal compare` (and the Python package) run.
 
-use crate::calibration::methods::{available, build, Method, MethodInputs};
+use super::{available, build, Method, MethodInputs};
 use crate::calibration::robot_to_robot::{
     calibrate_keeping_clouds, fuse_cell, initialize_only_keeping_clouds, refine_cell,
     CalibrateConfig, Calibration, FusedCell,

@@ -1,5 +1,4 @@
-//! 8-bit RGB images and writing them as PNG (always built: the capture and import code use them without
-//! the `sim` feature).
+//! 8-bit RGB images (colour frames of a camera) and writing them as PNG.
 
 use crate::error::{Error, Result};
 use std::path::Path;

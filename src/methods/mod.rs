@@ -1,9 +1,15 @@
-//! The initialisation methods of a robot-to-robot calibration: which a cell's data allows, and building one.
+//! The initialisation methods of a robot-to-robot calibration: which a cell's data allows, building one
+//! (the image methods from what [`crate::vision`] finds, with the `vision` feature), calibrating a cell
+//! with one ([`run::calibrate_with_method`]) and comparing them all ([`run::compare_methods`]).
+//!
+//! This sits above `calibration` and `vision` in the module graph: calibration owns the initialisers'
+//! types and mathematics, vision finds their observations in the images, and this module joins them.
 
-use crate::calibration::board_init::checkerboard_initializer;
-use crate::calibration::feature_init::feature_initializer;
+pub mod run;
+
+pub use run::{calibrate_with_method, compare_methods, Comparison, MethodOutcome, MethodRow};
+
 use crate::calibration::initializer::{GlobalRegistration, Initializer, UserGuess};
-use crate::calibration::marker_init::marker_initializer;
 use crate::calibration::robot_to_robot::CalibrateConfig;
 use crate::cell::{Board, Cell, MarkerTarget};
 use crate::error::{Error, Result};
@@ -112,18 +118,69 @@ pub fn build(
             Vec::new(),
         ),
         Method::Checkerboard => {
-            let (init, warnings) = checkerboard_initializer(cell, &inputs.board_pose)?;
+            let (init, warnings) = images::checkerboard(cell, &inputs.board_pose)?;
             (Box::new(init), ms(t0), warnings)
         }
         Method::Marker => {
-            let (init, warnings) = marker_initializer(cell, &cfg.marker)?;
+            let (init, warnings) = images::marker(cell, &cfg.marker)?;
             (Box::new(init), ms(t0), warnings)
         }
         Method::Features => {
-            let (init, warnings) = feature_initializer(cell, &cfg.features)?;
+            let (init, warnings) = images::features(cell, &cfg.features)?;
             (Box::new(init), ms(t0), warnings)
         }
     })
+}
+
+/// The image initialisers: found in the images with the `vision` feature.
+#[cfg(feature = "vision")]
+mod images {
+    pub use crate::vision::initializers::{
+        checkerboard_initializer as checkerboard, feature_initializer as features,
+        marker_initializer as marker,
+    };
+}
+
+/// The image initialisers of a build without the `vision` feature: the checkerboard from given board
+/// poses only; the others an error saying how to get them.
+#[cfg(not(feature = "vision"))]
+mod images {
+    use crate::calibration::board_init::{
+        board_needs_vision, checkerboard_initializer_with, CheckerboardInitializer,
+    };
+    use crate::calibration::feature_init::{FeatureInitializer, FeatureMethodConfig};
+    use crate::calibration::marker_init::{
+        marker_initializer_with, markers_need_vision, MarkerInitializer, MarkerMethodConfig,
+    };
+    use crate::cell::Cell;
+    use crate::error::{Error, Result};
+    use std::path::PathBuf;
+
+    pub fn checkerboard(
+        cell: &Cell,
+        given: &[(String, PathBuf)],
+    ) -> Result<(CheckerboardInitializer, Vec<String>)> {
+        checkerboard_initializer_with(cell, given, &mut board_needs_vision)
+    }
+
+    pub fn marker(
+        cell: &Cell,
+        cfg: &MarkerMethodConfig,
+    ) -> Result<(MarkerInitializer, Vec<String>)> {
+        marker_initializer_with(cell, cfg, &mut markers_need_vision)
+    }
+
+    pub fn features(
+        cell: &Cell,
+        _cfg: &FeatureMethodConfig,
+    ) -> Result<(FeatureInitializer, Vec<String>)> {
+        let (reference, _) = crate::calibration::robot_to_robot::robot_pair(cell)?;
+        Err(Error::InvalidInput(format!(
+            "robot {:?}: keypoints in its colour images need depthcal built with the `vision` feature \
+             (OpenCV): `cargo build --release --features vision`",
+            reference.name
+        )))
+    }
 }
 
 /// The methods the cell's data allows, each with the reason when it does not: depth always; the image

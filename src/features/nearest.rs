@@ -9,7 +9,7 @@
 //! second-best target and each target's best source. Each distance is the plain sequential sum over the
 //! 33 dimensions, so results are exact, and ties go to the lower index: independent of the thread count.
 
-use crate::features::{Fpfh, FPFH_BINS};
+use super::{Fpfh, FPFH_BINS};
 use rayon::prelude::*;
 
 const L: usize = 16;
