@@ -238,4 +238,6 @@ rows! {
     B50 => |d: &Path| { std::fs::write(d.join("r.csv"), format!("{KUKA_HEADER}0,1,2,3,4,5,6\n1,1,2,3,4,5,6\n")).unwrap(); std::fs::write(d.join("b.csv"), "frame,x,y,z,qx,qy,qz,qw\n0,0,0,1,0,0,0,1\n2,0,0,1,0,0,0,1\n").unwrap(); s(&["handeye", "--robot-poses", "r.csv", "--target-poses", "b.csv", "--target-format", "xyzquat"]) };
     B51 => |d: &Path| { std::fs::write(d.join("r.csv"), format!("{KUKA_HEADER}0,1,2,3,4,5,6\n1,1,2,3,4,5,6\n")).unwrap(); std::fs::write(d.join("b.csv"), "frame,x,y,z,qx,qy,qz,qw\n0,0,0,1,0,0,0,1\n1,0,0,1,0,0,0,1\n").unwrap(); s(&["handeye", "--robot-poses", "r.csv", "--target-poses", "b.csv", "--target-format", "xyzquat"]) };
     B52 => |d: &Path| { cell_with(d, |t| t.replacen("hand_eye = [0.640536833922", "hand_eye = [1.640536833922", 1)); s(&["calibrate", "cell"]) };
+    B53 => |d: &Path| { cell_with(d, |t| format!("{t}\n[board]\ntype = \"charuco\"\nsquares_x = 5\nsquares_y = 7\nsquare_m = 0.04\nmarker_m = 0.04\ndictionary = \"DICT_6X6_250\"\n")); s(&["calibrate", "cell", "--method", "checkerboard"]) };
+    B54 => |d: &Path| { cell_with(d, |t| format!("{t}\n[board]\ntype = \"charucoo\"\ncols = 9\nrows = 6\nsquare_m = 0.03\n")); s(&["calibrate", "cell", "--method", "checkerboard"]) };
 }

@@ -14,7 +14,6 @@ use depthcal::calibration::handeye::reprojection::{
 use depthcal::calibration::handeye::{calibrate_hand_eye, HandEyeConfig, HandEyeFrame};
 use depthcal::camera::{DistortionModel, Intrinsics};
 use depthcal::cell::{Board, CharucoBoard, MarkerDictionary};
-use depthcal::geometry::pose::xyzquat_to_isometry;
 use depthcal::geometry::Rng;
 use depthcal::sim::board::{gaussian_blur, SimBoard, SimBoardConfig, TablePrint};
 use depthcal::vision::intrinsics::{calibrate_intrinsics, IntrinsicsConfig};
@@ -285,28 +284,6 @@ fn tutorial_photos_give_the_reference_intrinsics() {
     assert!(with_reference < 1.05 * c.rms_px, "{with_reference}");
 }
 
-fn read_yaml_pose(path: &std::path::Path) -> Isometry3<f64> {
-    let text = std::fs::read_to_string(path).unwrap();
-    let get = |k: &str| -> f64 {
-        text.lines()
-            .find_map(|l| l.strip_prefix(&format!("{k}:")))
-            .unwrap_or_else(|| panic!("{}: no {k}", path.display()))
-            .trim()
-            .parse()
-            .unwrap()
-    };
-    xyzquat_to_isometry(&[
-        get("x"),
-        get("y"),
-        get("z"),
-        get("qx"),
-        get("qy"),
-        get("qz"),
-        get("qw"),
-    ])
-    .unwrap()
-}
-
 /// ROS-Industrial's `test_set_charuco`: 16 views of a 5x7 ChArUco board on the flange of an ABB arm, seen
 /// by a fixed 1600x1200 camera (eye-to-hand). `extrinsic_hand_eye.cpp` accepts a calibration when
 /// `sqrt(final_cost_per_obs) < 1.5 px` (Ceres' cost `½ Σ r²` over the u and v residuals, per residual),
@@ -346,7 +323,7 @@ fn industrial_charuco_set_meets_the_published_reprojection_threshold() {
         .iter()
         .map(|o| HandEyeFrame {
             id: o.frame.clone(),
-            t_base_ee: read_yaml_pose(&dir.join(format!("poses/{}.yaml", o.frame))),
+            t_base_ee: common::industrial_pose(&dir.join(format!("poses/{}.yaml", o.frame))),
             t_cam_board: o.t_cam_board.inverse(),
         })
         .collect();
@@ -448,7 +425,7 @@ fn handeye_command_reads_the_industrial_charuco_images() {
     let tmp = common::scratch("charuco-industrial-cli");
     let mut csv = String::from("frame,x,y,z,qx,qy,qz,qw\n");
     for k in 0..16 {
-        let t = read_yaml_pose(&dir.join(format!("poses/{k}.yaml")));
+        let t = common::industrial_pose(&dir.join(format!("poses/{k}.yaml")));
         let q = t.rotation;
         let v = t.translation.vector;
         csv.push_str(&format!(
@@ -462,37 +439,33 @@ fn handeye_command_reads_the_industrial_charuco_images() {
     Intrinsics::pinhole(1600, 1200, 1352.02747, 1356.14287, 789.67065, 627.2995)
         .write_json_file(&cam)
         .unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_depthcal"))
-        .args([
-            "handeye",
-            "--robot-poses",
-            poses.to_str().unwrap(),
-            "--robot-format",
-            "xyzquat",
-            "--images",
-            dir.join("images").to_str().unwrap(),
-            "--charuco",
-            "5x7",
-            "--square",
-            "36.195mm",
-            "--charuco-marker",
-            "18.256mm",
-            "--charuco-dict",
-            "6x6_250",
-            "--intrinsics",
-            cam.to_str().unwrap(),
-            "--eye-to-hand",
-            "--json",
-        ])
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
+    let (ok, out, err) = run(&[
+        "handeye",
+        "--robot-poses",
+        poses.to_str().unwrap(),
+        "--robot-format",
+        "xyzquat",
+        "--images",
+        dir.join("images").to_str().unwrap(),
+        "--charuco",
+        "5x7",
+        "--square",
+        "36.195mm",
+        "--charuco-marker",
+        "18.256mm",
+        "--charuco-dict",
+        "6x6_250",
+        "--intrinsics",
+        cam.to_str().unwrap(),
+        "--eye-to-hand",
+        "--json",
+    ]);
+    assert!(ok, "{err}");
     assert!(
         err.contains("found in 16 of 16 images") && err.contains("corners per view"),
         "{err}"
     );
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     let m = &v["T_base_cam"]["matrix"];
     let t = Vector3::new(
         m[0][3].as_f64().unwrap(),
@@ -507,16 +480,10 @@ fn handeye_command_reads_the_industrial_charuco_images() {
     std::fs::remove_dir_all(&tmp).ok();
 }
 
-fn depthcal(args: &[&str]) -> (bool, String, String) {
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_depthcal"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
+/// Runs the binary: (success, stdout, stderr).
+fn run(args: &[&str]) -> (bool, String, String) {
+    let (code, out, err) = common::depthcal(args);
+    (code == 0, out, err)
 }
 
 /// The ChArUco board through every command on a simulated cell: `simulate --charuco` → `intrinsics` →
@@ -556,7 +523,7 @@ fn simulated_charuco_cell_through_the_commands() {
         cfg.to_str().unwrap(),
     ];
     args.extend(charuco);
-    let (ok, _, err) = depthcal(&args);
+    let (ok, _, err) = run(&args);
     assert!(ok, "{err}");
     let manifest = std::fs::read_to_string(cell_dir.join("cell.toml")).unwrap();
     assert!(
@@ -575,7 +542,7 @@ fn simulated_charuco_cell_through_the_commands() {
     args.extend(images.iter().map(|s| s.as_str()));
     args.extend(charuco);
     args.extend(["--no-k3", "--json"]);
-    let (ok, out, err) = depthcal(&args);
+    let (ok, out, err) = run(&args);
     assert!(ok, "{err}");
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     let fx = v["fx"].as_f64().unwrap();
@@ -611,7 +578,7 @@ fn simulated_charuco_cell_through_the_commands() {
             "--json",
         ];
         args.extend(charuco);
-        let (ok, out, err) = depthcal(&args);
+        let (ok, out, err) = run(&args);
         assert!(ok, "{err}");
         let v: serde_json::Value = serde_json::from_str(&out).unwrap();
         let rows: Vec<f64> = v["T_ee_cam"]["matrix"]
@@ -631,7 +598,7 @@ fn simulated_charuco_cell_through_the_commands() {
     }
 
     // Robot-to-robot by the board in the colour images.
-    let (ok, out, err) = depthcal(&["calibrate", c, "--method", "checkerboard", "--json"]);
+    let (ok, out, err) = run(&["calibrate", c, "--method", "checkerboard", "--json"]);
     assert!(ok, "{err}");
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     let get = |e: &serde_json::Value| {
@@ -749,12 +716,12 @@ fn bad_board_parameters_are_named() {
     ] {
         let mut a = vec!["intrinsics", p];
         a.extend(args.iter().copied());
-        let (ok, _, err) = depthcal(&a);
+        let (ok, _, err) = run(&a);
         assert!(!ok, "{a:?}");
         assert!(err.contains(want), "{a:?}: {err}");
     }
     // The right board is found in OpenCV's image (one view is too few for intrinsics, and says so).
-    let (ok, _, err) = depthcal(&[
+    let (ok, _, err) = run(&[
         "intrinsics",
         p,
         "--charuco",
@@ -770,7 +737,7 @@ fn bad_board_parameters_are_named() {
 
     // A cell whose [board] is wrong: calibrate --method checkerboard names the key.
     let cell_dir = dir.join("cell");
-    let (ok, _, err) = depthcal(&[
+    let (ok, _, err) = run(&[
         "simulate",
         cell_dir.to_str().unwrap(),
         "--seed",
@@ -811,7 +778,7 @@ fn bad_board_parameters_are_named() {
     ] {
         assert!(manifest.contains(from), "{manifest}");
         std::fs::write(cell_dir.join("cell.toml"), manifest.replace(from, to)).unwrap();
-        let (ok, _, err) = depthcal(&[
+        let (ok, _, err) = run(&[
             "calibrate",
             cell_dir.to_str().unwrap(),
             "--method",

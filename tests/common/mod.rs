@@ -183,3 +183,27 @@ pub fn assert_documented(v: &serde_json::Value) {
         "{schema}: not in docs/json.md: {undocumented:?}"
     );
 }
+
+/// A pose file of ROS-Industrial's `industrial_calibration` example data (`x:`, `y:`, `z:`, `qx:` … `qw:`
+/// lines; metres, Hamilton quaternion).
+pub fn industrial_pose(path: &std::path::Path) -> Isometry3<f64> {
+    let text = std::fs::read_to_string(path).unwrap();
+    let get = |k: &str| -> f64 {
+        text.lines()
+            .find_map(|l| l.strip_prefix(&format!("{k}:")))
+            .unwrap_or_else(|| panic!("{}: no {k}", path.display()))
+            .trim()
+            .parse()
+            .unwrap()
+    };
+    depthcal::geometry::pose::xyzquat_to_isometry(&[
+        get("x"),
+        get("y"),
+        get("z"),
+        get("qx"),
+        get("qy"),
+        get("qz"),
+        get("qw"),
+    ])
+    .unwrap()
+}
