@@ -17,8 +17,8 @@ pub mod quality;
 pub mod trust;
 
 pub use pipeline::{
-    register, register_with_prior, register_with_progress, IcpLevelTrace, RegisterConfig,
-    Registration,
+    register, register_request, register_with_prior, register_with_progress, IcpLevelTrace,
+    RegisterConfig, RegisterRequest, Registration,
 };
 pub use trust::{assess_registration, Trust, TrustConfig};
 pub use verify::HypothesisPrior;

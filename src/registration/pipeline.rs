@@ -1,5 +1,7 @@
 //! The `register` pipeline: automatic scale → voxel pyramid → normals → FPFH → matching → RANSAC →
-//! coarse-to-fine trimmed robust ICP → quality. Each stage is timed.
+//! verification → coarse-to-fine trimmed robust ICP → quality. Each stage is a function of its own,
+//! driven by one [`RegisterRequest`] ([`register_request`]; `register`, `register_with_progress` and
+//! `register_with_prior` are thin wrappers), and each is timed.
 
 use super::extent::check_extents;
 use crate::error::{Error, Result};
@@ -15,7 +17,7 @@ use crate::preprocess::voxel::voxel_downsample;
 use crate::registration::correspondence::{match_features, MatchConfig};
 use crate::registration::icp::{icp, IcpCloud, IcpConfig, IcpFactor, IcpIteration, IcpResult};
 use crate::registration::quality::{covariance, degeneracy, Degeneracy};
-use crate::registration::ransac::{ransac_sided, RansacConfig, SideNormals};
+use crate::registration::ransac::{ransac_sided, RansacConfig, RansacResult, SideNormals};
 use crate::registration::trust::{assess_registration, Trust, TrustConfig};
 use crate::registration::verify::{verify_candidates, HypothesisPrior, VerifyConfig};
 use crate::timing::{StageRecord, StageTimer};
@@ -339,6 +341,7 @@ fn orient_to_hints(normals: &mut [[f32; 3]], hints: &[[f32; 3]]) {
     });
 }
 
+/// Fails on a cloud registration cannot use: fewer than 10 points, or all of them at one place.
 fn check_cloud(c: &PointCloud, what: &str) -> Result<()> {
     if c.len() < 10 {
         return Err(Error::InvalidInput(format!(
@@ -354,6 +357,44 @@ fn check_cloud(c: &PointCloud, what: &str) -> Result<()> {
     Ok(())
 }
 
+/// One registration problem: what [`register_request`] is given. [`RegisterRequest::new`] sets the
+/// defaults (no initial guess, no prior, no progress callback, extents checked).
+pub struct RegisterRequest<'a> {
+    /// The cloud to move (any unit; the result maps it into the target frame).
+    pub source: &'a PointCloud,
+    /// The fixed cloud, in the same unit as `source`.
+    pub target: &'a PointCloud,
+    /// The pipeline's settings.
+    pub config: &'a RegisterConfig,
+    /// An initial guess of the source-to-target transform (cloud units): the global stage is skipped and
+    /// ICP starts from it.
+    pub initial: Option<&'a Isometry3<f64>>,
+    /// Weighs the global stage's hypotheses: it multiplies RANSAC's inlier count when choosing which
+    /// hypotheses to verify, and their verification score.
+    pub prior: Option<HypothesisPrior<'a>>,
+    /// Called with the name of each stage as it starts.
+    pub progress: Option<&'a mut dyn FnMut(&str)>,
+    /// Check the clouds' extents first ([`check_extents`]; default true): a voxel at least as large as
+    /// a cloud is an error, clouds whose extents differ more than 20x give a warning, a reason when the
+    /// result is not trusted and the context of an error.
+    pub check_extents: bool,
+}
+
+impl<'a> RegisterRequest<'a> {
+    /// `source` onto `target` under `config`, with the defaults of the other fields.
+    pub fn new(source: &'a PointCloud, target: &'a PointCloud, config: &'a RegisterConfig) -> Self {
+        RegisterRequest {
+            source,
+            target,
+            config,
+            initial: None,
+            prior: None,
+            progress: None,
+            check_extents: true,
+        }
+    }
+}
+
 /// Registers `source` onto `target`: returns the transform mapping source points into the target frame.
 ///
 /// With `init`, the global stage is skipped and ICP starts from it. Non-finite points are dropped (and
@@ -364,7 +405,10 @@ pub fn register(
     init: Option<&Isometry3<f64>>,
     cfg: &RegisterConfig,
 ) -> Result<Registration> {
-    register_with_progress(source, target, init, cfg, &mut |_| {})
+    register_request(RegisterRequest {
+        initial: init,
+        ..RegisterRequest::new(source, target, cfg)
+    })
 }
 
 /// As [`register`], calling `progress` with the name of each stage as it starts.
@@ -379,15 +423,66 @@ pub fn register_with_progress(
     cfg: &RegisterConfig,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Registration> {
-    let notes = check_extents(source, target, cfg.voxel)?;
+    register_request(RegisterRequest {
+        initial: init,
+        progress: Some(progress),
+        ..RegisterRequest::new(source, target, cfg)
+    })
+}
+
+/// As [`register_with_progress`], with a [`HypothesisPrior`] weighing the global stage's hypotheses: it
+/// multiplies RANSAC's inlier count when choosing which hypotheses to verify, and their verification
+/// score. The clouds' extents are not checked.
+pub fn register_with_prior(
+    source: &PointCloud,
+    target: &PointCloud,
+    init: Option<&Isometry3<f64>>,
+    cfg: &RegisterConfig,
+    progress: &mut dyn FnMut(&str),
+    prior: Option<HypothesisPrior>,
+) -> Result<Registration> {
+    register_request(RegisterRequest {
+        initial: init,
+        prior,
+        progress: Some(progress),
+        check_extents: false,
+        ..RegisterRequest::new(source, target, cfg)
+    })
+}
+
+/// The one entry point of the pipeline: the extents check when asked for (see
+/// [`RegisterRequest::check_extents`]), then the stages `clean → scale → downsample_normals → global →
+/// verify → icp_pyramid → quality` (see [`Registration::stages`]).
+pub fn register_request(req: RegisterRequest) -> Result<Registration> {
+    let mut silent = |_: &str| {};
+    let progress: &mut dyn FnMut(&str) = match req.progress {
+        Some(p) => p,
+        None => &mut silent,
+    };
+    if !req.check_extents {
+        return run_pipeline(
+            req.source,
+            req.target,
+            req.initial,
+            req.config,
+            progress,
+            req.prior,
+        );
+    }
+    let notes = check_extents(req.source, req.target, req.config.voxel)?;
     let context = notes.units.as_ref().or(notes.big_voxel.as_ref());
-    let mut reg =
-        register_with_prior(source, target, init, cfg, progress, None).map_err(
-            |e| match context {
-                Some(c) => Error::InvalidInput(format!("{c}: {e}")),
-                None => e,
-            },
-        )?;
+    let mut reg = run_pipeline(
+        req.source,
+        req.target,
+        req.initial,
+        req.config,
+        progress,
+        req.prior,
+    )
+    .map_err(|e| match context {
+        Some(c) => Error::InvalidInput(format!("{c}: {e}")),
+        None => e,
+    })?;
     if let Some(u) = notes.units {
         if !reg.trust.trusted {
             reg.trust.reasons.push(u.clone());
@@ -397,10 +492,16 @@ pub fn register_with_progress(
     Ok(reg)
 }
 
-/// As [`register_with_progress`], with a [`HypothesisPrior`] weighing the global stage's hypotheses: it
-/// multiplies RANSAC's inlier count when choosing which hypotheses to verify, and their verification
-/// score.
-pub fn register_with_prior(
+/// The pipeline, stage by stage (each timed in [`Registration::stages`]):
+///
+/// 1. [`clean`]: drop non-finite points, check the clouds and the configuration;
+/// 2. [`scale`]: point spacings and the global voxel;
+/// 3. [`prepare_level`] at the global voxel: downsampling, normals (and GICP covariances);
+/// 4. [`global`] (without an initial guess): FPFH, feature matching, RANSAC;
+/// 5. [`verify`] (with [`RegisterConfig::verify`]): the best hypotheses refined and rescored;
+/// 6. [`icp_pyramid`]: coarse-to-fine trimmed robust ICP;
+/// 7. [`quality`]: degeneracy, covariance, then the trust verdict.
+fn run_pipeline(
     source: &PointCloud,
     target: &PointCloud,
     init: Option<&Isometry3<f64>>,
@@ -410,6 +511,94 @@ pub fn register_with_prior(
 ) -> Result<Registration> {
     let mut timer = StageTimer::new();
     progress("measuring scale");
+    let Cleaned {
+        source: src,
+        target: tgt,
+        mut warnings,
+    } = clean(source, target, cfg)?;
+    let Scale { spacing, voxel } = scale(&src, &tgt, cfg)?;
+    timer.lap_counted("scale", Some(src.len() + tgt.len()), None);
+
+    progress("downsampling, normals");
+    let gicp = cfg.icp.factor == IcpFactor::Gicp;
+    let s0 = prepare_level(&src, voxel, cfg, init.is_none(), gicp)?;
+    let t0 = prepare_level(&tgt, voxel, cfg, init.is_none(), gicp)?;
+    timer.lap_counted(
+        "downsample_normals",
+        Some(src.len() + tgt.len()),
+        Some(s0.cloud.len() + t0.cloud.len()),
+    );
+
+    progress("features");
+    let mut ambiguity = None;
+    let (initial, global_summary) = match init {
+        Some(t) => (*t, None),
+        None => {
+            let mut g = global(&s0, &t0, voxel, cfg, &mut timer, progress)?;
+            if let Some(vcfg) = &cfg.verify {
+                progress("verifying hypotheses");
+                ambiguity = verify(&mut g, &s0, &t0, voxel, prior, cfg, vcfg, &mut timer);
+            }
+            progress("ICP");
+            let summary = summarize_global(&g.ransac);
+            (summary.transform, Some(summary))
+        }
+    };
+
+    let pyramid = icp_pyramid(&src, &tgt, &s0, &t0, &initial, voxel, spacing, cfg)?;
+    timer.lap_counted(
+        "icp",
+        Some(
+            pyramid
+                .traces
+                .iter()
+                .map(|l| l.source_points * l.iterations.len())
+                .sum(),
+        ),
+        Some(pyramid.finest.pairs),
+    );
+
+    let (degeneracy, covariance) = quality(&pyramid, cfg, &mut warnings);
+    timer.lap("quality");
+    let mut out = Registration {
+        transform: pyramid.transform,
+        fitness: pyramid.finest.fitness,
+        inlier_rmse: pyramid.finest.inlier_rmse,
+        overlap: pyramid.finest.overlap,
+        converged: pyramid.converged,
+        iterations: pyramid.iterations,
+        information: pyramid.finest.information,
+        covariance,
+        degeneracy,
+        global: global_summary,
+        voxel,
+        spacing,
+        global_points: [s0.cloud.len(), t0.cloud.len()],
+        timings_ms: timer.wall_ms(),
+        stages: timer.into_records(),
+        warnings,
+        ambiguity,
+        surface_agreement: pyramid.surface_agreement,
+        finest_voxel: pyramid.finest_voxel,
+        trust: Trust::default(),
+        initial,
+        icp_levels: pyramid.traces,
+    };
+    out.trust = assess_registration(&out, &cfg.trust, "");
+    Ok(out)
+}
+
+/// The clouds as registration uses them: finite points only, and what was dropped.
+struct Cleaned {
+    source: PointCloud,
+    target: PointCloud,
+    warnings: Vec<String>,
+}
+
+/// Stage 1. Takes the input clouds and the configuration; gives copies without non-finite points (one
+/// warning per cloud that lost some). Fails on a cloud of fewer than 10 points or of one place, an
+/// invalid configuration, or a sided registration without normals on both clouds.
+fn clean(source: &PointCloud, target: &PointCloud, cfg: &RegisterConfig) -> Result<Cleaned> {
     let mut warnings = Vec::new();
     let mut src = source.clone();
     let mut tgt = target.clone();
@@ -431,7 +620,23 @@ pub fn register_with_prior(
                 .into(),
         });
     }
-    // Scale.
+    Ok(Cleaned {
+        source: src,
+        target: tgt,
+        warnings,
+    })
+}
+
+/// The clouds' resolution: median point spacings (source, target) and the global voxel, cloud units.
+struct Scale {
+    spacing: [f64; 2],
+    voxel: f64,
+}
+
+/// Stage 2. Takes the cleaned clouds; gives their median point spacings and the global voxel (cloud
+/// units): [`RegisterConfig::voxel`] when given, else the geometric mean of the voxels that bring each
+/// cloud to [`ScaleConfig::target_points`], at least `min_voxel_per_spacing` spacings.
+fn scale(src: &PointCloud, tgt: &PointCloud, cfg: &RegisterConfig) -> Result<Scale> {
     let spacing = [
         estimate_spacing(&src.points)?,
         estimate_spacing(&tgt.points)?,
@@ -456,138 +661,213 @@ pub fn register_with_prior(
         spacing[0],
         spacing[1]
     );
-    timer.lap_counted("scale", Some(src.len() + tgt.len()), None);
-    progress("downsampling, normals");
+    Ok(Scale { spacing, voxel })
+}
 
-    // Global stage.
-    let gicp = cfg.icp.factor == IcpFactor::Gicp;
-    let s0 = prepare_level(&src, voxel, cfg, init.is_none(), gicp)?;
-    let t0 = prepare_level(&tgt, voxel, cfg, init.is_none(), gicp)?;
-    timer.lap_counted(
-        "downsample_normals",
-        Some(src.len() + tgt.len()),
-        Some(s0.cloud.len() + t0.cloud.len()),
-    );
-    progress("features");
-    let mut ambiguity = None;
-    let (initial, global) = match init {
-        Some(t) => (*t, None),
-        None => {
-            let fcfg = FpfhConfig {
-                radius: cfg.fpfh_radius_voxels * voxel,
-                max_neighbors: cfg.fpfh_max_neighbors,
-            };
-            let sf: Vec<Fpfh> = compute_fpfh(
-                &s0.cloud.points,
-                s0.cloud.normals.as_ref().unwrap(),
-                &s0.index,
-                &fcfg,
-            );
-            let tf: Vec<Fpfh> = compute_fpfh(
-                &t0.cloud.points,
-                t0.cloud.normals.as_ref().unwrap(),
-                &t0.index,
-                &fcfg,
-            );
-            timer.lap_counted(
-                "fpfh",
-                Some(s0.cloud.len() + t0.cloud.len()),
-                Some(sf.len() + tf.len()),
-            );
-            progress("matching");
-            let corr = match_features(&sf, &tf, &cfg.matching);
-            timer.lap_counted("match", Some(sf.len() + tf.len()), Some(corr.len()));
-            progress("RANSAC");
-            let rcfg = RansacConfig {
-                inlier_distance: cfg.ransac_distance_voxels * voxel,
-                seed: cfg.seed,
-                ..cfg.ransac.clone()
-            };
-            let sides = cfg.sided.then(|| SideNormals {
-                source: s0.cloud.normals.as_deref().expect("level normals"),
-                target: t0.cloud.normals.as_deref().expect("level normals"),
-                // Matched points of one surface agree to far better than 60°; opposite sides are ~180°.
-                min_cos: 0.5,
-            });
-            let mut r = ransac_sided(
-                &s0.cloud.points,
-                &t0.cloud.points,
-                &t0.index,
-                &corr,
-                &rcfg,
-                sides,
-            )?;
-            timer.lap_counted("ransac", Some(corr.len()), Some(r.candidates.len()));
-            if let Some(vcfg) = &cfg.verify {
-                progress("verifying hypotheses");
-                // Which hypotheses to verify: the most feature inliers, weighed by the caller's prior.
-                let weights: Vec<f64> = r
-                    .candidates
-                    .par_iter()
-                    .map(|c| prior.map_or(1.0, |f| f(&c.2)))
-                    .collect();
-                let mut order: Vec<usize> = (0..r.candidates.len()).collect();
-                order.sort_by(|&a, &b| {
-                    let sa = r.candidates[a].0 as f64 * weights[a];
-                    let sb = r.candidates[b].0 as f64 * weights[b];
-                    sb.total_cmp(&sa).then(a.cmp(&b))
-                });
-                order.truncate(vcfg.max_candidates.max(1));
-                let cands: Vec<Isometry3<f64>> = order.iter().map(|&k| r.candidates[k].2).collect();
-                let mut v = verify_candidates(
-                    &s0.cloud.points,
-                    s0.cloud.normals.as_ref().expect("level normals"),
-                    &t0.cloud.points,
-                    t0.cloud.normals.as_ref().expect("level normals"),
-                    &t0.index,
-                    &cands,
-                    voxel,
-                    &rcfg.constraint,
-                    prior,
-                    cfg.sided,
-                    vcfg,
-                );
-                for c in v.iter_mut() {
-                    c.candidate = order[c.candidate];
-                }
-                ambiguity = find_ambiguity(&v[..vcfg.refine_top.max(1).min(v.len())], voxel, cfg);
-                if let Some(best) = v.first().filter(|b| b.score > 0.0) {
-                    log::info!(
-                        "verification: candidate {} of {} wins with score {:.3} (RANSAC's choice: {:.3})",
-                        best.candidate,
-                        v.len(),
-                        best.score,
-                        v.iter().find(|x| x.candidate == 0).map_or(0.0, |x| x.score)
-                    );
-                    r.transform = best.transform;
-                    r.inlier_count = r.candidates[best.candidate].0;
-                }
-                timer.lap_counted("verify", Some(cands.len()), Some(v.len()));
-            }
-            progress("ICP");
-            log::info!(
-                "global: {} correspondences, {} inliers, {} samples, fitness {:.3}",
-                r.correspondence_count,
-                r.inlier_count,
-                r.iterations,
-                r.fitness
-            );
-            (
-                r.transform,
-                Some(GlobalSummary {
-                    correspondences: r.correspondence_count,
-                    inliers: r.inlier_count,
-                    iterations: r.iterations,
-                    fitness: r.fitness,
-                    transform: r.transform,
-                }),
-            )
-        }
+/// What the global stage found: RANSAC's result (its transform replaced by the verification's winner)
+/// and the RANSAC settings it ran with.
+struct GlobalStage {
+    ransac: RansacResult,
+    config: RansacConfig,
+}
+
+/// Stage 4. Takes the global-voxel levels (`voxel`, cloud units; normals oriented for features); gives
+/// RANSAC's hypotheses over FPFH correspondences, with its inlier distance
+/// [`RegisterConfig::ransac_distance_voxels`] × `voxel`. Laps `fpfh`, `match` and `ransac`.
+fn global(
+    s0: &Level,
+    t0: &Level,
+    voxel: f64,
+    cfg: &RegisterConfig,
+    timer: &mut StageTimer,
+    progress: &mut dyn FnMut(&str),
+) -> Result<GlobalStage> {
+    let fcfg = FpfhConfig {
+        radius: cfg.fpfh_radius_voxels * voxel,
+        max_neighbors: cfg.fpfh_max_neighbors,
     };
+    let sf = level_features(s0, &fcfg);
+    let tf = level_features(t0, &fcfg);
+    timer.lap_counted(
+        "fpfh",
+        Some(s0.cloud.len() + t0.cloud.len()),
+        Some(sf.len() + tf.len()),
+    );
+    progress("matching");
+    let corr = match_features(&sf, &tf, &cfg.matching);
+    timer.lap_counted("match", Some(sf.len() + tf.len()), Some(corr.len()));
+    progress("RANSAC");
+    let rcfg = RansacConfig {
+        inlier_distance: cfg.ransac_distance_voxels * voxel,
+        seed: cfg.seed,
+        ..cfg.ransac.clone()
+    };
+    let sides = cfg.sided.then(|| SideNormals {
+        source: level_normals(s0),
+        target: level_normals(t0),
+        // Matched points of one surface agree to far better than 60°; opposite sides are ~180°.
+        min_cos: 0.5,
+    });
+    let r = ransac_sided(
+        &s0.cloud.points,
+        &t0.cloud.points,
+        &t0.index,
+        &corr,
+        &rcfg,
+        sides,
+    )?;
+    timer.lap_counted("ransac", Some(corr.len()), Some(r.candidates.len()));
+    Ok(GlobalStage {
+        ransac: r,
+        config: rcfg,
+    })
+}
 
-    // Coarse-to-fine ICP.
+/// A level's normals (every prepared level has them).
+fn level_normals(level: &Level) -> &[[f32; 3]] {
+    level.cloud.normals.as_deref().expect("level normals")
+}
+
+/// FPFH descriptors of a level's points (one per point).
+fn level_features(level: &Level, fcfg: &FpfhConfig) -> Vec<Fpfh> {
+    compute_fpfh(
+        &level.cloud.points,
+        level.cloud.normals.as_ref().unwrap(),
+        &level.index,
+        fcfg,
+    )
+}
+
+/// Stage 5. Takes RANSAC's hypotheses on the global-voxel levels; refines and rescores the
+/// [`VerifyConfig::max_candidates`] most promising ([`verify_candidates`]), and makes the winner (when it
+/// scores above 0) the global stage's transform and inlier count. Gives the ambiguity among the fully
+/// refined ones, if any. Laps `verify`.
+#[allow(clippy::too_many_arguments)]
+fn verify(
+    g: &mut GlobalStage,
+    s0: &Level,
+    t0: &Level,
+    voxel: f64,
+    prior: Option<HypothesisPrior>,
+    cfg: &RegisterConfig,
+    vcfg: &VerifyConfig,
+    timer: &mut StageTimer,
+) -> Option<Ambiguity> {
+    let r = &mut g.ransac;
+    let order = candidates_to_verify(r, prior, vcfg.max_candidates);
+    let cands: Vec<Isometry3<f64>> = order.iter().map(|&k| r.candidates[k].2).collect();
+    let mut v = verify_candidates(
+        &s0.cloud.points,
+        s0.cloud.normals.as_ref().expect("level normals"),
+        &t0.cloud.points,
+        t0.cloud.normals.as_ref().expect("level normals"),
+        &t0.index,
+        &cands,
+        voxel,
+        &g.config.constraint,
+        prior,
+        cfg.sided,
+        vcfg,
+    );
+    for c in v.iter_mut() {
+        c.candidate = order[c.candidate];
+    }
+    let ambiguity = find_ambiguity(&v[..vcfg.refine_top.max(1).min(v.len())], voxel, cfg);
+    if let Some(best) = v.first().filter(|b| b.score > 0.0) {
+        log::info!(
+            "verification: candidate {} of {} wins with score {:.3} (RANSAC's choice: {:.3})",
+            best.candidate,
+            v.len(),
+            best.score,
+            v.iter().find(|x| x.candidate == 0).map_or(0.0, |x| x.score)
+        );
+        r.transform = best.transform;
+        r.inlier_count = r.candidates[best.candidate].0;
+    }
+    timer.lap_counted("verify", Some(cands.len()), Some(v.len()));
+    ambiguity
+}
+
+/// Indices into RANSAC's candidates of the (at most `max`, at least one) to verify: the most feature
+/// inliers times the caller's prior, ties by index.
+fn candidates_to_verify(
+    r: &RansacResult,
+    prior: Option<HypothesisPrior>,
+    max: usize,
+) -> Vec<usize> {
+    let weights: Vec<f64> = r
+        .candidates
+        .par_iter()
+        .map(|c| prior.map_or(1.0, |f| f(&c.2)))
+        .collect();
+    let mut order: Vec<usize> = (0..r.candidates.len()).collect();
+    order.sort_by(|&a, &b| {
+        let sa = r.candidates[a].0 as f64 * weights[a];
+        let sb = r.candidates[b].0 as f64 * weights[b];
+        sb.total_cmp(&sa).then(a.cmp(&b))
+    });
+    order.truncate(max.max(1));
+    order
+}
+
+/// The global stage's summary (logged): its correspondences, inliers, samples, fitness and transform.
+fn summarize_global(r: &RansacResult) -> GlobalSummary {
+    log::info!(
+        "global: {} correspondences, {} inliers, {} samples, fitness {:.3}",
+        r.correspondence_count,
+        r.inlier_count,
+        r.iterations,
+        r.fitness
+    );
+    GlobalSummary {
+        correspondences: r.correspondence_count,
+        inliers: r.inlier_count,
+        iterations: r.iterations,
+        fitness: r.fitness,
+        transform: r.transform,
+    }
+}
+
+/// What the coarse-to-fine ICP gives.
+struct Pyramid {
+    /// The final transform (source to target).
+    transform: Isometry3<f64>,
+    /// Every level met its tolerances.
+    converged: bool,
+    /// Iterations over all levels.
+    iterations: usize,
+    /// The finest level's ICP result.
+    finest: IcpResult,
+    /// The finest level's (subsampled) source points.
+    finest_source: Vec<[f32; 3]>,
+    /// [`surface_agreement`] at the finest level.
+    surface_agreement: f64,
+    /// The finest level's voxel (cloud units).
+    finest_voxel: f64,
+    /// Degeneracy judged at the coarsest level.
+    coarse_degeneracy: Degeneracy,
+    /// One trace per level run.
+    traces: Vec<IcpLevelTrace>,
+}
+
+/// Stage 6. Takes the cleaned clouds, the global-voxel levels, the starting transform and the global
+/// voxel and spacings (cloud units); runs ICP at voxel, voxel/2, ... ([`RegisterConfig::icp_levels`]),
+/// the last level clamped to [`RegisterConfig::icp_min_voxel_spacings`] spacings, each level starting
+/// from the previous one's transform. Gives the final transform, the finest level's result and every
+/// level's trace.
+#[allow(clippy::too_many_arguments)]
+fn icp_pyramid(
+    src: &PointCloud,
+    tgt: &PointCloud,
+    s0: &Level,
+    t0: &Level,
+    initial: &Isometry3<f64>,
+    voxel: f64,
+    spacing: [f64; 2],
+    cfg: &RegisterConfig,
+) -> Result<Pyramid> {
     let finest = cfg.icp_min_voxel_spacings * spacing[0].max(spacing[1]);
-    let mut t = initial;
+    let mut t = *initial;
     let mut converged = true;
     let mut iterations = 0;
     let mut last: Option<(IcpResult, Vec<[f32; 3]>, f64)> = None;
@@ -608,35 +888,12 @@ pub fn register_with_prior(
         let (sl, tl) = if level == 0 {
             (None, None)
         } else {
-            let sl = if gicp || cfg.icp.max_normal_angle_deg.is_some() || cfg.sided {
-                prepare_level(&src, v, cfg, false, gicp)?
-            } else {
-                let cloud = voxel_downsample(&src, v)?;
-                Level {
-                    index: KdIndex::new(&[]),
-                    cloud,
-                    covariances: None,
-                }
-            };
-            (Some(sl), Some(prepare_level(&tgt, v, cfg, false, gicp)?))
+            let (sl, tl) = icp_level_clouds(src, tgt, v, cfg)?;
+            (Some(sl), Some(tl))
         };
-        let slev = sl.as_ref().unwrap_or(&s0);
-        let tlev = tl.as_ref().unwrap_or(&t0);
-        let s_points = &slev.cloud.points;
-        let step = s_points
-            .len()
-            .div_ceil(cfg.icp_max_source_points.max(100))
-            .max(1);
-        let s_sub: Vec<[f32; 3]> = s_points.iter().step_by(step).copied().collect();
-        let s_cov: Option<Vec<[f32; 6]>> = slev
-            .covariances
-            .as_ref()
-            .map(|c| c.iter().step_by(step).copied().collect());
-        let s_nrm: Option<Vec<[f32; 3]>> = slev
-            .cloud
-            .normals
-            .as_ref()
-            .map(|c| c.iter().step_by(step).copied().collect());
+        let slev = sl.as_ref().unwrap_or(s0);
+        let tlev = tl.as_ref().unwrap_or(t0);
+        let sub = subsample_source(slev, cfg.icp_max_source_points);
         let icfg = IcpConfig {
             max_correspondence_distance: cfg.icp_distance_voxels * v,
             translation_tolerance: 1e-3 * v,
@@ -646,9 +903,9 @@ pub fn register_with_prior(
         let prep_ms = level_start.elapsed().as_secs_f64() * 1e3;
         let r = icp(
             &IcpCloud {
-                points: &s_sub,
-                normals: s_nrm.as_deref(),
-                covariances: s_cov.as_deref(),
+                points: &sub.points,
+                normals: sub.normals.as_deref(),
+                covariances: sub.covariances.as_deref(),
             },
             &tlev.icp_cloud(),
             &tlev.index,
@@ -657,7 +914,7 @@ pub fn register_with_prior(
         )?;
         log::info!(
             "icp level {level} (voxel {v:.4}, {} source / {} target points, prepared in {prep_ms:.1} ms, ran in {:.1} ms): {} iterations, converged {}, fitness {:.3}, overlap {:.3}, rmse {:.5}",
-            s_sub.len(),
+            sub.points.len(),
             tlev.cloud.len(),
             level_start.elapsed().as_secs_f64() * 1e3 - prep_ms,
             r.iterations,
@@ -667,25 +924,12 @@ pub fn register_with_prior(
             r.inlier_rmse
         );
         if level == 0 {
-            // Degeneracy is judged at the coarsest level: its normals come from wide neighbourhoods, so
-            // their noise does not prop up free directions (a bare noisy plane: 2e-5 here against 3e-4
-            // at the finest voxel, where simulated cells' weakest direction falls to 2e-3).
-            let moved: Vec<Vector3<f64>> = s_sub
-                .iter()
-                .map(|p| (r.transform * nalgebra::Point3::from(to_v64(p))).coords)
-                .collect();
-            let (center, length) = centre_and_radius(&moved);
-            coarse_degeneracy = Some(degeneracy(
-                &r.information,
-                &center,
-                length,
-                cfg.degeneracy_threshold,
-            ));
+            coarse_degeneracy = Some(coarse_level_degeneracy(&r, &sub.points, cfg));
         }
         traces.push(IcpLevelTrace {
             voxel: v,
             max_correspondence_distance: icfg.max_correspondence_distance,
-            source_points: s_sub.len(),
+            source_points: sub.points.len(),
             target_points: tlev.cloud.len(),
             converged: r.converged,
             prepare_ms: if level == 0 { 0.0 } else { prep_ms },
@@ -694,33 +938,114 @@ pub fn register_with_prior(
         t = r.transform;
         converged &= r.converged;
         iterations += r.iterations;
-        let agreement = surface_agreement(&s_sub, s_nrm.as_deref(), tlev, &t, 0.5 * v, cfg.sided);
-        last = Some((r, s_sub, agreement));
+        let agreement = surface_agreement(
+            &sub.points,
+            sub.normals.as_deref(),
+            tlev,
+            &t,
+            0.5 * v,
+            cfg.sided,
+        );
+        last = Some((r, sub.points, agreement));
         finest_voxel = v;
         if last_level {
             break;
         }
     }
     let (r, s_sub, agreement) = last.expect("at least one ICP level");
-    timer.lap_counted(
-        "icp",
-        Some(
-            traces
-                .iter()
-                .map(|l| l.source_points * l.iterations.len())
-                .sum(),
-        ),
-        Some(r.pairs),
-    );
+    Ok(Pyramid {
+        transform: t,
+        converged,
+        iterations,
+        finest: r,
+        finest_source: s_sub,
+        surface_agreement: agreement,
+        finest_voxel,
+        coarse_degeneracy: coarse_degeneracy.expect("level 0 always runs"),
+        traces,
+    })
+}
 
-    // Quality.
+/// The source and target clouds of an ICP level finer than the global one (`voxel`, cloud units). The
+/// source gets normals (and covariances) only when ICP uses them: GICP, a normal-angle gate, or sides.
+fn icp_level_clouds(
+    src: &PointCloud,
+    tgt: &PointCloud,
+    voxel: f64,
+    cfg: &RegisterConfig,
+) -> Result<(Level, Level)> {
+    let gicp = cfg.icp.factor == IcpFactor::Gicp;
+    let sl = if gicp || cfg.icp.max_normal_angle_deg.is_some() || cfg.sided {
+        prepare_level(src, voxel, cfg, false, gicp)?
+    } else {
+        let cloud = voxel_downsample(src, voxel)?;
+        Level {
+            index: KdIndex::new(&[]),
+            cloud,
+            covariances: None,
+        }
+    };
+    Ok((sl, prepare_level(tgt, voxel, cfg, false, gicp)?))
+}
+
+/// A level's source points (with their normals and covariances, when present) after a deterministic
+/// stride subsample to at most about `max_points` (never fewer than 100 kept per stride).
+struct SourceSample {
+    points: Vec<[f32; 3]>,
+    normals: Option<Vec<[f32; 3]>>,
+    covariances: Option<Vec<[f32; 6]>>,
+}
+
+/// Takes a level and [`RegisterConfig::icp_max_source_points`]; gives every `step`-th point, normal and
+/// covariance, `step = ⌈n / max(max_points, 100)⌉`.
+fn subsample_source(level: &Level, max_points: usize) -> SourceSample {
+    let s_points = &level.cloud.points;
+    let step = s_points.len().div_ceil(max_points.max(100)).max(1);
+    SourceSample {
+        points: s_points.iter().step_by(step).copied().collect(),
+        normals: level
+            .cloud
+            .normals
+            .as_ref()
+            .map(|c| c.iter().step_by(step).copied().collect()),
+        covariances: level
+            .covariances
+            .as_ref()
+            .map(|c| c.iter().step_by(step).copied().collect()),
+    }
+}
+
+/// Degeneracy of the coarsest level's information `r.information`, rotations scaled by the RMS radius
+/// of its source points `s_sub` mapped by `r.transform` (cloud units).
+fn coarse_level_degeneracy(r: &IcpResult, s_sub: &[[f32; 3]], cfg: &RegisterConfig) -> Degeneracy {
+    // Degeneracy is judged at the coarsest level: its normals come from wide neighbourhoods, so
+    // their noise does not prop up free directions (a bare noisy plane: 2e-5 here against 3e-4
+    // at the finest voxel, where simulated cells' weakest direction falls to 2e-3).
     let moved: Vec<Vector3<f64>> = s_sub
         .iter()
-        .map(|p| t * nalgebra::Point3::from(to_v64(p)))
-        .map(|p| p.coords)
+        .map(|p| (r.transform * nalgebra::Point3::from(to_v64(p))).coords)
+        .collect();
+    let (center, length) = centre_and_radius(&moved);
+    degeneracy(&r.information, &center, length, cfg.degeneracy_threshold)
+}
+
+/// Stage 7. Takes the ICP pyramid's result; gives the degeneracy (judged at the coarsest level) and the
+/// covariance of `[ω (rad), v (cloud units)]`: `σ²(JᵀWJ)⁻¹` of the finest level plus the systematic
+/// floor of [`RegisterConfig::systematic_voxel_fraction`]. Adds a warning for a degenerate geometry and
+/// for ICP that did not converge.
+fn quality(
+    p: &Pyramid,
+    cfg: &RegisterConfig,
+    warnings: &mut Vec<String>,
+) -> (Degeneracy, Matrix6<f64>) {
+    let moved: Vec<Vector3<f64>> = p
+        .finest_source
+        .iter()
+        .map(|q| p.transform * nalgebra::Point3::from(to_v64(q)))
+        .map(|q| q.coords)
         .collect();
     let (_, length) = centre_and_radius(&moved);
-    let deg = coarse_degeneracy.expect("level 0 always runs");
+    let deg = p.coarse_degeneracy.clone();
     if deg.is_degenerate() {
         let msg = format!(
             "the geometry leaves some motion unconstrained: {} (the result may slide along it)",
@@ -729,46 +1054,21 @@ pub fn register_with_prior(
         log::warn!("{msg}");
         warnings.push(msg);
     }
-    if !converged {
+    if !p.converged {
         warnings
             .push("ICP did not meet its convergence tolerances within the iteration budget".into());
     }
     // Statistical part σ²(JᵀWJ)⁻¹ (independent residuals) plus a systematic floor for what it leaves
     // out: neighbouring residuals are correlated and the surfaces are represented at the finest voxel.
+    let r = &p.finest;
     let mut cov = covariance(&r.information, r.residual_sigma * r.residual_sigma);
-    let sys_t = cfg.systematic_voxel_fraction * finest_voxel;
-    let sys_r = sys_t / (3.0 * length).max(finest_voxel);
+    let sys_t = cfg.systematic_voxel_fraction * p.finest_voxel;
+    let sys_r = sys_t / (3.0 * length).max(p.finest_voxel);
     for k in 0..3 {
         cov[(k, k)] += sys_r * sys_r;
         cov[(k + 3, k + 3)] += sys_t * sys_t;
     }
-    timer.lap("quality");
-    let mut out = Registration {
-        transform: t,
-        fitness: r.fitness,
-        inlier_rmse: r.inlier_rmse,
-        overlap: r.overlap,
-        converged,
-        iterations,
-        information: r.information,
-        covariance: cov,
-        degeneracy: deg,
-        global,
-        voxel,
-        spacing,
-        global_points: [s0.cloud.len(), t0.cloud.len()],
-        timings_ms: timer.wall_ms(),
-        stages: timer.into_records(),
-        warnings,
-        ambiguity,
-        surface_agreement: agreement,
-        finest_voxel,
-        trust: Trust::default(),
-        initial,
-        icp_levels: traces,
-    };
-    out.trust = assess_registration(&out, &cfg.trust, "");
-    Ok(out)
+    (deg, cov)
 }
 
 /// The first of the fully verified candidates (best first) that lies far from the best and scores almost
