@@ -9,6 +9,7 @@
 use crate::calibration::initializer::{InitialGuess, Initializer, InitializerInput};
 use crate::error::{Error, Result};
 use crate::geometry::Rng;
+use crate::registration::consensus::{consensus_loop, draw_sequential, samples_needed, LoopLimits};
 use crate::registration::rigid_fit::rigid_fit;
 use nalgebra::{Isometry3, Point3};
 use serde::{Deserialize, Serialize};
@@ -108,48 +109,54 @@ pub fn ransac_rigid(
             .filter(|(s, d)| (t * *s - *d).norm_squared() <= thr2)
             .count()
     };
-    let mut rng = Rng::new(seed ^ 0xF1A7_0000_0000_0003);
-    let mut best: Option<(usize, Isometry3<f64>)> = None;
-    let mut limit = cfg.max_iterations;
-    let mut it = 0;
-    while it < limit {
-        it += 1;
+    // One minimal sample: three distinct pairs about as far apart in both clouds (no degenerate
+    // samples), their rigid fit, accepted by the priors, with its inlier count.
+    let hypothesis = |rng: &mut Rng, _it: usize| -> Option<(usize, Isometry3<f64>)> {
         let a = rng.below(n);
         let b = rng.below(n);
         let c = rng.below(n);
         if a == b || b == c || a == c {
-            continue;
+            return None;
         }
-        // Reject degenerate samples: the pairs must be about as far apart in both clouds.
         let (s, d) = ([src[a], src[b], src[c]], [dst[a], dst[b], dst[c]]);
         let consistent = [(0, 1), (1, 2), (0, 2)].iter().all(|&(i, j)| {
             let (ls, ld) = ((s[i] - s[j]).norm(), (d[i] - d[j]).norm());
             (ls - ld).abs() <= 2.0 * cfg.inlier_m && ls > 2.0 * cfg.inlier_m
         });
         if !consistent {
-            continue;
+            return None;
         }
-        let Some(t) = rigid_fit(&s, &d, None) else {
-            continue;
-        };
+        let t = rigid_fit(&s, &d, None)?;
         if !accept(&t) {
-            continue;
+            return None;
         }
-        let k = count(&t);
-        if best.as_ref().is_none_or(|(bk, _)| k > *bk) {
-            best = Some((k, t));
-            let w = k as f64 / n as f64;
-            let miss = 1.0 - w.powi(3);
-            if miss <= 0.0 {
-                limit = it;
-            } else {
-                let need = ((1.0 - cfg.confidence).ln() / miss.ln()).ceil();
-                if need.is_finite() && (need as usize) < limit {
-                    limit = (need as usize).max(it);
+        Some((count(&t), t))
+    };
+    // The registration's RANSAC loop, one sample per batch from one sequential generator; the best is
+    // the first with the most inliers, and the confidence rule uses its inlier ratio cubed.
+    let mut rng = Rng::new(seed ^ 0xF1A7_0000_0000_0003);
+    let mut best: Option<(usize, Isometry3<f64>)> = None;
+    let ln_fail = (1.0 - cfg.confidence).ln();
+    let limits = LoopLimits {
+        max_iterations: cfg.max_iterations,
+        min_iterations: 0,
+        batch: 1,
+    };
+    let it = consensus_loop(
+        &limits,
+        |its| draw_sequential(&mut rng, its, hypothesis),
+        |batch| {
+            for (k, t) in batch {
+                if best.as_ref().is_none_or(|(bk, _)| k > *bk) {
+                    best = Some((k, t));
                 }
             }
-        }
-    }
+            let (k, _) = best.as_ref()?;
+            let w = *k as f64 / n as f64;
+            let need = samples_needed(w.powi(3), ln_fail);
+            need.is_finite().then_some(need)
+        },
+    );
     let (k, mut t) = best?;
     if k < cfg.min_inliers.max(3) {
         return None;

@@ -10,7 +10,8 @@
 //! * **Pre-checks** before any fit: edge-length similarity of the two triangles, then, after the
 //!   closed-form fit, each of the three pairs within the inlier distance.
 //! * **Scoring**: number of correspondences within the inlier distance.
-//! * **Early stop** by confidence, between fixed-size batches, with the success probability of the
+//! * **Early stop** by confidence, between fixed-size batches (the loop of
+//!   [`crate::registration::consensus`], shared with the feature initialiser's RANSAC), with the success probability of the
 //!   sampler actually used (for guided sampling, estimated from the best inlier set).
 //! * **Verification**: the best distinct hypotheses are refitted on their inliers (two rounds) and
 //!   re-counted; the one with the most inliers wins, ties broken by cloud fitness (the fraction of source
@@ -24,6 +25,7 @@ use crate::geometry::cloud::{to_p64, transform_point};
 use crate::geometry::transform::pose_error;
 use crate::geometry::Rng;
 use crate::index::KdIndex;
+use crate::registration::consensus::{consensus_loop, draw_streams, samples_needed, LoopLimits};
 use crate::registration::correspondence::Correspondence;
 use crate::registration::rigid_fit::rigid_fit;
 use nalgebra::{Isometry3, Point3};
@@ -378,8 +380,7 @@ pub fn ransac_sided(
         .constraint
         .max_tilt_deg
         .is_some_and(|t| t <= MAX_TILT_FOR_TWO_POINT_DEG);
-    let sample = |it: usize| -> Option<Hypothesis> {
-        let mut rng = Rng::stream(cfg.seed, it as u64);
+    let hypothesis = |rng: &mut Rng, it: usize| -> Option<Hypothesis> {
         let draw = |rng: &mut Rng, k: usize| -> Option<[usize; 3]> {
             if guided {
                 let r = rng.next_u64() % total_degree;
@@ -407,7 +408,7 @@ pub fn ransac_sided(
             }
         };
         let t = if two_point {
-            let [a, b, _] = draw(&mut rng, 2)?;
+            let [a, b, _] = draw(rng, 2)?;
             if !edge_ok(a, b) {
                 return None;
             }
@@ -417,7 +418,7 @@ pub fn ransac_sided(
             }
             t
         } else {
-            let [a, b, c] = draw(&mut rng, 3)?;
+            let [a, b, c] = draw(rng, 3)?;
             if !(edge_ok(a, b) && edge_ok(b, c) && edge_ok(a, c)) {
                 return None;
             }
@@ -446,38 +447,33 @@ pub fn ransac_sided(
 
     let keep = cfg.verify_top.max(1);
     let mut top: Vec<Hypothesis> = Vec::new();
-    let mut done = 0;
-    let max_it = cfg.max_iterations.max(1);
     let ln_fail = (1.0 - cfg.confidence.clamp(0.0, 0.999_999_999)).ln();
-    while done < max_it {
-        let end = (done + BATCH).min(max_it);
-        let mut batch: Vec<Hypothesis> = (done..end).into_par_iter().filter_map(sample).collect();
-        done = end;
-        batch.sort_by(|x, y| y.count.cmp(&x.count).then(x.iteration.cmp(&y.iteration)));
-        merge_top(&mut top, batch, keep, tau);
-        let Some(best) = top.first() else { continue };
-        // Probability that one sample is all-inlier, for the sampler in use.
-        let p = if guided {
-            guided_success_probability(&best.t, &ps, &qs, tau2, &graph, total_degree, two_point)
-        } else {
-            let w = best.count as f64 / n as f64;
-            if two_point {
-                w * w
+    let limits = LoopLimits {
+        max_iterations: cfg.max_iterations.max(1),
+        min_iterations: cfg.min_iterations,
+        batch: BATCH,
+    };
+    let done = consensus_loop(
+        &limits,
+        |its| draw_streams(cfg.seed, its, &hypothesis),
+        |mut batch| {
+            batch.sort_by(|x, y| y.count.cmp(&x.count).then(x.iteration.cmp(&y.iteration)));
+            merge_top(&mut top, batch, keep, tau);
+            let best = top.first()?;
+            // Probability that one sample is all-inlier, for the sampler in use.
+            let p = if guided {
+                guided_success_probability(&best.t, &ps, &qs, tau2, &graph, total_degree, two_point)
             } else {
-                w * w * w
-            }
-        };
-        if p > 0.0 {
-            let needed = if p >= 1.0 {
-                1.0
-            } else {
-                ln_fail / (1.0 - p).ln()
+                let w = best.count as f64 / n as f64;
+                if two_point {
+                    w * w
+                } else {
+                    w * w * w
+                }
             };
-            if done >= cfg.min_iterations && done as f64 >= needed {
-                break;
-            }
-        }
-    }
+            (p > 0.0).then(|| samples_needed(p, ln_fail))
+        },
+    );
     if top.is_empty() {
         return Err(Error::Failed(format!(
             "RANSAC found no consistent hypothesis in {done} samples of {n} correspondences"
