@@ -124,9 +124,9 @@ fn stages(c: &mut Criterion) {
             ..Default::default()
         };
         g.bench_function("ransac", |b| {
-            b.iter(|| black_box(ransac(&sd.points, &td.points, &ti, &corr, &rcfg).unwrap()))
+            b.iter(|| black_box(ransac(&sd.points, &td.points, &ti, &corr, &rcfg, 0).unwrap()))
         });
-        let found = ransac(&sd.points, &td.points, &ti, &corr, &rcfg).unwrap();
+        let found = ransac(&sd.points, &td.points, &ti, &corr, &rcfg, 0).unwrap();
         let init = found.transform;
         // Verification of RANSAC's best distinct hypotheses (short ICP + alignment score each).
         let vcfg = VerifyConfig::default();

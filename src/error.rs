@@ -238,12 +238,37 @@ mod tests {
     }
 
     #[test]
-    fn fields_the_pipeline_sets_are_not_checked_in_register_config() {
-        // The pipeline overwrites these per level: a value given for them is ignored, not an error.
+    fn fields_the_pipeline_sets_are_refused_in_register_config() {
+        // The pipeline sets these per level from the voxel: a value given for them would be overwritten
+        // silently, so it is an error naming the field.
+        RegisterConfig::default().validate().unwrap();
         let mut r = RegisterConfig::default();
-        r.icp.max_correspondence_distance = 0.0;
+        r.icp.max_correspondence_distance = 0.02;
+        let e = r.validate().unwrap_err();
+        assert!(e.to_string().contains("icp_distance_voxels"), "{e}");
+        assert_eq!(field(Err(e)), "icp.max_correspondence_distance");
+        let mut r = RegisterConfig::default();
         r.icp.translation_tolerance = 0.0;
-        r.ransac.inlier_distance = 0.0;
-        r.validate().unwrap();
+        assert_eq!(field(r.validate()), "icp.translation_tolerance");
+        let mut r = RegisterConfig::default();
+        r.ransac.inlier_distance = 0.01;
+        let e = r.validate().unwrap_err();
+        assert!(e.to_string().contains("ransac_distance_voxels"), "{e}");
+    }
+
+    #[test]
+    fn calibrate_has_one_seed_and_takes_constraints_from_the_priors() {
+        let mut c = CalibrateConfig {
+            seed: 4,
+            ..Default::default()
+        };
+        c.validate().unwrap();
+        c.register.seed = 4;
+        c.validate().unwrap();
+        c.register.seed = 5;
+        assert_eq!(field(c.validate()), "register.seed");
+        let mut c = CalibrateConfig::default();
+        c.register.ransac.constraint.max_tilt_deg = Some(3.0);
+        assert_eq!(field(c.validate()), "register.ransac.constraint");
     }
 }

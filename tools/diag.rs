@@ -83,6 +83,7 @@ fn main() {
                 inlier_distance: tau,
                 ..Default::default()
             },
+            0,
         )
         .unwrap();
         let (re, te) = depthcal::geometry::transform::pose_error(&r.transform, &gt);

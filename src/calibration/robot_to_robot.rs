@@ -20,6 +20,7 @@ use crate::registration::Trust;
 use crate::registration::{
     register, IcpConfig, IcpFactor, RansacConfig, RegisterConfig, RobustKernel,
 };
+use crate::timing::StageTimer;
 use nalgebra::{Isometry3, Matrix6};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
@@ -37,7 +38,8 @@ pub struct CalibrateConfig {
     pub register: RegisterConfig,
     /// Use the `[priors]` of `cell.toml` (default true).
     pub use_priors: bool,
-    /// Seed of every randomised step.
+    /// Seed of every randomised step: calibrate's one seed (the initialisers and the refinement take it;
+    /// `register.seed` must be left out).
     pub seed: u64,
     /// The marker method's settings (`--method marker`).
     pub marker: crate::calibration::marker_init::MarkerMethodConfig,
@@ -117,6 +119,21 @@ impl CalibrateConfig {
     pub fn validate(&self) -> Result<()> {
         self.fuse.validate()?;
         self.register.validate().map_err(|e| e.within("register"))?;
+        if self.register.seed != RegisterConfig::default().seed && self.register.seed != self.seed {
+            return Err(Error::config(
+                "register.seed",
+                format!(
+                    "calibrate has one seed, `seed` ({}); set it there instead of register.seed ({})",
+                    self.seed, self.register.seed
+                ),
+            ));
+        }
+        if self.register.ransac.constraint != Default::default() {
+            return Err(Error::config(
+                "register.ransac.constraint",
+                "calibrate takes its pose constraint from the cell's [priors] (cell.toml); state the priors there",
+            ));
+        }
         self.marker.validate()?;
         self.features.validate()?;
         self.consistency.validate()?;
@@ -395,15 +412,7 @@ pub fn refine_cell(
     progress: &mut dyn FnMut(&str),
 ) -> Result<Calibration> {
     let (reference, other) = robot_pair(cell)?;
-    let mut timings = Vec::new();
-    let mut lap = {
-        let mut t = Instant::now();
-        move |name: &str, timings: &mut Vec<(String, f64)>| {
-            let now = Instant::now();
-            timings.push((name.to_string(), (now - t).as_secs_f64() * 1e3));
-            t = now;
-        }
-    };
+    let mut timer = StageTimer::new();
     let constraint = fused.priors.constraint();
     let (ref_cloud, other_cloud) = (&fused.reference, &fused.other);
     progress(&format!("initialising ({})", initializer.name()));
@@ -413,7 +422,7 @@ pub fn refine_cell(
         constraint: &constraint,
         seed: cfg.seed,
     })?;
-    lap("initialize", &mut timings);
+    timer.lap("initialize");
     let truth = cell.ground_truth()?.and_then(|g| g.t_base1_base2);
     let mut out = Calibration {
         reference: reference.name.clone(),
@@ -437,7 +446,7 @@ pub fn refine_cell(
         initial_error_vs_truth: truth.map(|t| pose_error(&initial.transform, &t)),
         ambiguity: initial.ambiguity.clone(),
         initial,
-        timings_ms: timings,
+        timings_ms: Vec::new(),
         warnings: Vec::new(),
         priors_assumed: fused.priors.level_assumed() && cfg.use_priors,
         free_space: None,
@@ -453,7 +462,7 @@ pub fn refine_cell(
             || robot_consistency(other, other_cloud, &cfg.consistency),
         );
         out.consistency = vec![a, b];
-        lap("consistency", &mut out.timings_ms);
+        timer.lap("consistency");
     }
     let inputs = |t: &nalgebra::Isometry3<f64>| {
         inputs_covariance(
@@ -468,6 +477,7 @@ pub fn refine_cell(
         out.normalised_error =
             truth.and_then(|t| normalised_error(&out.transform, &t, &out.covariance));
         out.trust = calibration_trust(&out, &constraint, None);
+        out.timings_ms = timer.wall_ms();
         return Ok(out);
     }
     progress("refining (trimmed robust ICP)");
@@ -479,7 +489,7 @@ pub fn refine_cell(
         Some(&out.initial.transform),
         &rcfg,
     )?;
-    lap("refine", &mut out.timings_ms);
+    timer.lap("refine");
     out.warnings = reg.warnings.clone();
     out.transform = reg.transform;
     out.inputs_covariance = inputs(&reg.transform);
@@ -495,8 +505,9 @@ pub fn refine_cell(
     out.error_vs_truth = truth.map(|t| pose_error(&reg.transform, &t));
     out.free_space = free_space_check(fused, &out.transform);
     out.icp_levels = reg.icp_levels;
-    lap("checks", &mut out.timings_ms);
+    timer.lap("checks");
     out.trust = calibration_trust(&out, &constraint, Some(&reg.trust));
+    out.timings_ms = timer.wall_ms();
     Ok(out)
 }
 

@@ -222,6 +222,18 @@ fn same_transform(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
     r < 1e-6 && t < 1e-9
 }
 
+/// A robot of the cell before frames are added to it: its manifest entry, and for a robot the cell already
+/// has, its frame ids (with their pose-file lines) and its pose file's text.
+struct RobotBefore {
+    entry: RobotEntry,
+    is_new: bool,
+    ids: HashMap<String, usize>,
+    pose_text: Option<String>,
+}
+
+/// One image file to write: where, for which frame, and whether it is the colour image.
+type ImageJob<'a> = (PathBuf, &'a NewFrame, bool);
+
 /// Adds `frames` (all taken with a camera of intrinsics `intrinsics`) to the robot `setup.name` of the cell in
 /// `dir`.
 ///
@@ -261,109 +273,160 @@ pub fn append_frames(
     } else {
         CellManifest::new(&setup.name)
     };
-    let existing = manifest.robots.iter().position(|r| r.name == setup.name);
-
-    // The robot's entry and the frames it already has.
-    let mut existing_ids: HashMap<String, usize> = HashMap::new();
-    let mut existing_pose_text: Option<String> = None;
-    let entry = match existing {
-        Some(i) => {
-            let e = manifest.robots[i].clone();
-            let poses_path = dir.join(&e.poses);
-            let text =
-                std::fs::read_to_string(&poses_path).map_err(|er| Error::io(&poses_path, er))?;
-            let (_, recs) = parse_poses(&text, Some(e.pose_format), &poses_path)?;
-            for r in recs {
-                existing_ids.insert(r.frame, r.line);
-            }
-            existing_pose_text = Some(text);
-            let intr_path = dir.join(&e.intrinsics);
-            let old = Intrinsics::from_json_file(&intr_path)?;
-            if let Some((field, was, now)) = intrinsics_difference(&old, intrinsics) {
-                return Err(Error::format(
-                    &intr_path,
-                    format!(
-                        "field `{field}` is {was} but the new frames' camera has {now}; the frames of one robot \
-                         share one intrinsics file: add these frames to another robot name or another cell"
-                    ),
-                ));
-            }
-            if let Some(t) = &setup.hand_eye {
-                let old = read_hand_eye(dir, &e.hand_eye)?;
-                if !same_transform(&old, t) {
-                    return Err(Error::format(
-                        &manifest_path,
-                        format!(
-                            "robot {:?} already has a different hand_eye (T_ee_cam); leave the hand-eye out to keep \
-                             the cell's, or edit cell.toml",
-                            setup.name
-                        ),
-                    ));
-                }
-            }
-            e
-        }
-        None => {
-            let Some(t) = setup.hand_eye else {
-                return Err(Error::InvalidInput(format!(
-                    "robot {:?} is new to the cell {}: give its hand-eye T_ee_cam (a JSON file with the 4x4 \
-                     matrix in metres, or `identity` until it is calibrated)",
-                    setup.name,
-                    dir.display()
-                )));
-            };
-            let mut e = RobotEntry::standard(&setup.name, t);
-            e.pose_format = setup.pose_format;
-            if frames.iter().all(|f| f.color.is_some()) {
-                e.color = Some(format!("{}/color/{FRAME_PLACEHOLDER}.png", setup.name));
-            }
-            for p in [&e.poses, &e.intrinsics] {
-                let p = dir.join(p);
-                if p.exists() {
-                    return Err(Error::InvalidInput(format!(
-                        "{}: exists already but robot {:?} is not in {}; it is never overwritten: remove it or \
-                         choose another robot name",
-                        p.display(),
-                        setup.name,
-                        manifest_path.display()
-                    )));
-                }
-            }
-            e
-        }
+    let before = match manifest.robots.iter().find(|r| r.name == setup.name) {
+        Some(e) => existing_robot(dir, e.clone(), setup, intrinsics)?,
+        None => new_robot(dir, setup, frames)?,
     };
-    let store_color = match &entry.color {
-        Some(_) => {
-            if let Some(f) = frames.iter().find(|f| f.color.is_none()) {
-                return Err(Error::InvalidInput(format!(
-                    "{}: frame {} has no colour image, but robot {:?} stores colour for every frame ({:?})",
-                    f.source, f.id, setup.name, entry.color
-                )));
-            }
-            true
-        }
-        None => {
-            if frames.iter().any(|f| f.color.is_some()) {
-                log::warn!(
-                    "robot {:?} of {} has no colour pattern; colour images are not stored",
-                    setup.name,
-                    dir.display()
-                );
-            }
-            false
-        }
-    };
-
+    let store_color = color_storage(dir, &before.entry, setup, frames)?;
     // Every check before the first write.
+    check_new_frames(dir, &before, intrinsics, frames)?;
+    let jobs = image_jobs(dir, &before.entry, setup, frames, store_color)?;
+    if before.is_new {
+        manifest.robots.push(before.entry.clone());
+    }
+    manifest
+        .validate()
+        .map_err(|m| Error::InvalidInput(format!("{}: {m}", manifest_path.display())))?;
+    let image_bytes = write_appended(dir, &manifest, &before, intrinsics, frames, &jobs)?;
+    let files_written = jobs.len() + if before.is_new { 3 } else { 1 };
+    // The cell must open as a whole (catches anything the checks above missed).
+    let cell = Cell::open(dir)?;
+    let frames_total = cell.robot(&setup.name)?.frames.len();
+    Ok(AppendReport {
+        cell_dir: dir.to_path_buf(),
+        robot: setup.name.clone(),
+        created_cell: !had_cell,
+        created_robot: before.is_new,
+        frames: frames.iter().map(|f| f.id.clone()).collect(),
+        frames_total,
+        color: store_color,
+        files_written,
+        image_bytes,
+    })
+}
+
+/// A robot the cell has: its frames so far; its intrinsics must equal the new frames' and a given hand-eye
+/// the manifest's.
+fn existing_robot(
+    dir: &Path,
+    e: RobotEntry,
+    setup: &RobotSetup,
+    intrinsics: &Intrinsics,
+) -> Result<RobotBefore> {
+    let poses_path = dir.join(&e.poses);
+    let text = std::fs::read_to_string(&poses_path).map_err(|er| Error::io(&poses_path, er))?;
+    let (_, recs) = parse_poses(&text, Some(e.pose_format), &poses_path)?;
+    let ids = recs.into_iter().map(|r| (r.frame, r.line)).collect();
+    let intr_path = dir.join(&e.intrinsics);
+    let old = Intrinsics::from_json_file(&intr_path)?;
+    if let Some((field, was, now)) = intrinsics_difference(&old, intrinsics) {
+        return Err(Error::format(
+            &intr_path,
+            format!(
+                "field `{field}` is {was} but the new frames' camera has {now}; the frames of one robot \
+                 share one intrinsics file: add these frames to another robot name or another cell"
+            ),
+        ));
+    }
+    if let Some(t) = &setup.hand_eye {
+        let old = read_hand_eye(dir, &e.hand_eye)?;
+        if !same_transform(&old, t) {
+            return Err(Error::format(
+                dir.join(MANIFEST_FILE),
+                format!(
+                    "robot {:?} already has a different hand_eye (T_ee_cam); leave the hand-eye out to keep \
+                     the cell's, or edit cell.toml",
+                    setup.name
+                ),
+            ));
+        }
+    }
+    Ok(RobotBefore {
+        entry: e,
+        is_new: false,
+        ids,
+        pose_text: Some(text),
+    })
+}
+
+/// A robot new to the cell: the conventional layout, which must not exist yet; needs a hand-eye.
+fn new_robot(dir: &Path, setup: &RobotSetup, frames: &[NewFrame]) -> Result<RobotBefore> {
+    let Some(t) = setup.hand_eye else {
+        return Err(Error::InvalidInput(format!(
+            "robot {:?} is new to the cell {}: give its hand-eye T_ee_cam (a JSON file with the 4x4 \
+             matrix in metres, or `identity` until it is calibrated)",
+            setup.name,
+            dir.display()
+        )));
+    };
+    let mut e = RobotEntry::standard(&setup.name, t);
+    e.pose_format = setup.pose_format;
+    if frames.iter().all(|f| f.color.is_some()) {
+        e.color = Some(format!("{}/color/{FRAME_PLACEHOLDER}.png", setup.name));
+    }
+    for p in [&e.poses, &e.intrinsics] {
+        let p = dir.join(p);
+        if p.exists() {
+            return Err(Error::InvalidInput(format!(
+                "{}: exists already but robot {:?} is not in {}; it is never overwritten: remove it or \
+                 choose another robot name",
+                p.display(),
+                setup.name,
+                dir.join(MANIFEST_FILE).display()
+            )));
+        }
+    }
+    Ok(RobotBefore {
+        entry: e,
+        is_new: true,
+        ids: HashMap::new(),
+        pose_text: None,
+    })
+}
+
+/// Whether colour is stored: a robot with a colour pattern needs colour on every new frame; one without drops
+/// colour (with a warning).
+fn color_storage(
+    dir: &Path,
+    entry: &RobotEntry,
+    setup: &RobotSetup,
+    frames: &[NewFrame],
+) -> Result<bool> {
+    if entry.color.is_some() {
+        if let Some(f) = frames.iter().find(|f| f.color.is_none()) {
+            return Err(Error::InvalidInput(format!(
+                "{}: frame {} has no colour image, but robot {:?} stores colour for every frame ({:?})",
+                f.source, f.id, setup.name, entry.color
+            )));
+        }
+        return Ok(true);
+    }
+    if frames.iter().any(|f| f.color.is_some()) {
+        log::warn!(
+            "robot {:?} of {} has no colour pattern; colour images are not stored",
+            setup.name,
+            dir.display()
+        );
+    }
+    Ok(false)
+}
+
+/// The new frames' ids are valid, new and distinct, and their images have the intrinsics' size.
+fn check_new_frames(
+    dir: &Path,
+    before: &RobotBefore,
+    intrinsics: &Intrinsics,
+    frames: &[NewFrame],
+) -> Result<()> {
     let mut new_ids: HashMap<&str, &NewFrame> = HashMap::new();
     for f in frames {
         check_frame_id(&f.id, &f.pose_origin)?;
-        if let Some(line) = existing_ids.get(&f.id) {
+        if let Some(line) = before.ids.get(&f.id) {
             return Err(Error::InvalidInput(format!(
                 "{}: frame id {} is already in {} (line {line}); frames are never overwritten: use other ids",
                 f.pose_origin,
                 f.id,
-                dir.join(&entry.poses).display()
+                dir.join(&before.entry.poses).display()
             )));
         }
         if let Some(prev) = new_ids.insert(&f.id, f) {
@@ -392,7 +455,18 @@ pub fn append_frames(
             }
         }
     }
-    let mut jobs: Vec<(PathBuf, &NewFrame, bool)> = Vec::new();
+    Ok(())
+}
+
+/// The image files to write, none of which may exist.
+fn image_jobs<'a>(
+    dir: &Path,
+    entry: &RobotEntry,
+    setup: &RobotSetup,
+    frames: &'a [NewFrame],
+    store_color: bool,
+) -> Result<Vec<ImageJob<'a>>> {
+    let mut jobs: Vec<ImageJob> = Vec::new();
     for f in frames {
         jobs.push((frame_path(dir, &entry.depth, &f.id), f, false));
         if store_color {
@@ -412,21 +486,29 @@ pub fn append_frames(
             )));
         }
     }
-    if existing.is_none() {
-        manifest.robots.push(entry.clone());
-    }
-    manifest
-        .validate()
-        .map_err(|m| Error::InvalidInput(format!("{}: {m}", manifest_path.display())))?;
+    Ok(jobs)
+}
 
-    // Writing: images, then intrinsics (new robot), then the pose file, then cell.toml.
+/// Writes the images, then the intrinsics (new robot), then the pose file, then cell.toml (new robot); on an
+/// error removes what this call wrote. Returns the bytes of image written.
+fn write_appended(
+    dir: &Path,
+    manifest: &CellManifest,
+    before: &RobotBefore,
+    intrinsics: &Intrinsics,
+    frames: &[NewFrame],
+    jobs: &[ImageJob],
+) -> Result<u64> {
+    let entry = &before.entry;
+    let create_parent = |p: &Path| match p.parent() {
+        Some(parent) => std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e)),
+        None => Ok(()),
+    };
     let mut written: Vec<PathBuf> = Vec::new();
     let result = (|| -> Result<u64> {
         let mut bytes = 0;
-        for (p, f, is_color) in &jobs {
-            if let Some(parent) = p.parent() {
-                std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
-            }
+        for (p, f, is_color) in jobs {
+            create_parent(p)?;
             if *is_color {
                 write_rgb_png(p, f.color.as_ref().expect("checked"))?;
             } else {
@@ -435,16 +517,15 @@ pub fn append_frames(
             written.push(p.clone());
             bytes += std::fs::metadata(p).map_err(|e| Error::io(p, e))?.len();
         }
-        if existing.is_none() {
+        if before.is_new {
             let p = dir.join(&entry.intrinsics);
-            if let Some(parent) = p.parent() {
-                std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
-            }
+            create_parent(&p)?;
             intrinsics.write_json_file(&p)?;
             written.push(p);
         }
         let poses_path = dir.join(&entry.poses);
-        let mut text = existing_pose_text
+        let mut text = before
+            .pose_text
             .clone()
             .unwrap_or_else(|| format!("{}\n", entry.pose_format.header()));
         if !text.ends_with('\n') {
@@ -456,40 +537,20 @@ pub fn append_frames(
             text.push_str(&entry.pose_format.format_values(&f.t_base_ee));
             text.push('\n');
         }
-        if let Some(parent) = poses_path.parent() {
-            std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
-        }
+        create_parent(&poses_path)?;
         crate::io::write_atomically(&poses_path, |w| w.write_all(text.as_bytes()))?;
-        if existing.is_none() {
+        if before.is_new {
             written.push(poses_path);
             manifest.write(dir)?;
         }
         Ok(bytes)
     })();
-    let image_bytes = match result {
-        Ok(b) => b,
-        Err(e) => {
-            for p in &written {
-                let _ = std::fs::remove_file(p);
-            }
-            return Err(e);
+    if result.is_err() {
+        for p in &written {
+            let _ = std::fs::remove_file(p);
         }
-    };
-    let files_written = jobs.len() + if existing.is_none() { 3 } else { 1 };
-    // The cell must open as a whole (catches anything the checks above missed).
-    let cell = Cell::open(dir)?;
-    let frames_total = cell.robot(&setup.name)?.frames.len();
-    Ok(AppendReport {
-        cell_dir: dir.to_path_buf(),
-        robot: setup.name.clone(),
-        created_cell: !had_cell,
-        created_robot: existing.is_none(),
-        frames: frames.iter().map(|f| f.id.clone()).collect(),
-        frames_total,
-        color: store_color,
-        files_written,
-        image_bytes,
-    })
+    }
+    result
 }
 
 /// The name of the optional timestamp column of a recording's pose file (seconds, after `frame`).
@@ -628,6 +689,16 @@ impl Default for MatchConfig {
     }
 }
 
+impl MatchConfig {
+    /// Checks the ranges; the error names the field (`mode.tolerance_s`, `color_tolerance_s`).
+    pub fn validate(&self) -> Result<()> {
+        if let MatchMode::Time { tolerance_s } = self.mode {
+            crate::error::check::non_negative("mode.tolerance_s", tolerance_s)?;
+        }
+        crate::error::check::non_negative("color_tolerance_s", self.color_tolerance_s)
+    }
+}
+
 /// One recorded frame as a recording lists it: its timestamp and the key to read it with.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FrameStamp {
@@ -671,6 +742,7 @@ pub fn match_frames(
     cfg: &MatchConfig,
     recording: &Path,
 ) -> Result<Vec<FrameMatch>> {
+    cfg.validate()?;
     let n = depth.frames.len();
     if n == 0 {
         return Err(Error::format(

@@ -111,6 +111,24 @@ impl Default for CaptureConfig {
     }
 }
 
+impl CaptureConfig {
+    /// Checks the ranges; the error names the field.
+    pub fn validate(&self) -> Result<()> {
+        use crate::error::check;
+        check::at_least("width", self.width as usize, 1)?;
+        check::at_least("height", self.height as usize, 1)?;
+        check::at_least("fps", self.fps as usize, 1)?;
+        check::positive("timeout_s", self.timeout_s)?;
+        if self.serial.as_deref().is_some_and(|s| s.trim().is_empty()) {
+            return Err(Error::config(
+                "serial",
+                "must be a serial number, got an empty string",
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// A frame taken from a live camera.
 #[derive(Clone, Debug)]
 pub struct LiveFrame {
@@ -177,6 +195,7 @@ impl Camera {
     /// Opens the camera of `cfg.serial` (or the only one connected) and starts streaming. With no camera
     /// connected the error says what was looked for.
     pub fn open(cfg: &CaptureConfig) -> Result<Self> {
+        cfg.validate()?;
         use realsense_rust::{
             config::Config,
             context::Context,

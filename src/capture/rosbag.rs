@@ -61,6 +61,26 @@ pub struct BagImportConfig {
     pub tf: bool,
 }
 
+impl BagImportConfig {
+    /// Checks the settings; the error names the field: a depth scale must be a positive length, a topic a
+    /// non-empty name.
+    pub fn validate(&self) -> Result<()> {
+        if let Some(s) = self.depth_scale {
+            crate::error::check::positive("depth_scale", s)?;
+        }
+        for (field, topic) in [
+            ("depth_topic", &self.depth_topic),
+            ("camera_info_topic", &self.camera_info_topic),
+            ("color_topic", &self.color_topic),
+        ] {
+            if topic.as_deref().is_some_and(|t| t.trim().is_empty()) {
+                return Err(Error::config(field, "must name a topic, got an empty name"));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// A topic of a bag.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TopicInfo {
@@ -716,6 +736,16 @@ fn longest_prefix<'a>(
     all.into_iter().filter(|c| common(c) == best).collect()
 }
 
+/// What the first pass over a bag's messages found: the topics, each image topic's stamps, the camera infos
+/// and the depth-units options by topic, and the TF transforms (when asked for).
+struct BagScan {
+    topics: Vec<TopicInfo>,
+    images: HashMap<String, Vec<ImageMeta>>,
+    infos: HashMap<String, Vec<RosCameraInfo>>,
+    units: HashMap<String, f32>,
+    tf: super::tf::TfBuffer,
+}
+
 impl BagRecording {
     /// The TF transforms of the bag (empty unless [`BagImportConfig::tf`] asked for them); leaves an empty
     /// buffer behind.
@@ -727,19 +757,8 @@ impl BagRecording {
     /// camera info and the timestamps of every depth (and colour) image. Errors name the file and the topic.
     pub fn open(path: impl AsRef<Path>, cfg: &BagImportConfig) -> Result<Self> {
         let path = path.as_ref().to_path_buf();
-        {
-            use std::io::Read;
-            let mut head = Vec::with_capacity(4096);
-            std::fs::File::open(&path)
-                .and_then(|f| f.take(1 << 16).read_to_end(&mut head))
-                .map_err(|e| Error::io(&path, e))?;
-            let len = std::fs::metadata(&path)
-                .map_err(|e| Error::io(&path, e))?
-                .len();
-            check_bag_header(&path, &head, len)?;
-            let file = std::fs::File::open(&path).map_err(|e| Error::io(&path, e))?;
-            check_bag_records(&path, file, len)?;
-        }
+        cfg.validate()?;
+        check_bag_file(&path)?;
         let bag = RosBag::new(&path).map_err(|e| bag_error(&path, e))?;
         let mut conns: HashMap<u32, (String, String)> = HashMap::new();
         for rec in bag.index_records() {
@@ -747,155 +766,20 @@ impl BagRecording {
                 conns.insert(c.id, (c.topic.to_string(), c.tp.to_string()));
             }
         }
-
-        // Pass 1: topics, image stamps, camera infos, depth-units options.
-        let mut topics: BTreeMap<String, TopicInfo> = BTreeMap::new();
-        let mut images: HashMap<String, Vec<ImageMeta>> = HashMap::new();
-        let mut infos: HashMap<String, Vec<RosCameraInfo>> = HashMap::new();
-        let mut units: HashMap<String, f32> = HashMap::new();
-        let mut tf = super::tf::TfBuffer::new();
-        for_each_message(&path, &bag, &mut conns, |topic, tp, time_ns, data| {
-            let info = topics
-                .entry(topic.to_string())
-                .or_insert_with(|| TopicInfo {
-                    topic: topic.to_string(),
-                    msg_type: tp.to_string(),
-                    messages: 0,
-                    encoding: None,
-                    size: None,
-                });
-            let ordinal = info.messages as u64;
-            info.messages += 1;
-            let at = |msg: String| {
-                Error::format(
-                    &path,
-                    format!("topic {topic} message {}: {tp}: {msg}", ordinal + 1),
-                )
-            };
-            match tp {
-                IMAGE_TYPE => {
-                    let img = RosImage::decode(data).map_err(at)?;
-                    if info.encoding.is_none() {
-                        info.encoding = Some(img.encoding.to_string());
-                        info.size = Some((img.width, img.height));
-                    }
-                    let t_s = if img.stamp_s > 0.0 {
-                        img.stamp_s
-                    } else {
-                        time_ns as f64 * 1e-9
-                    };
-                    images
-                        .entry(topic.to_string())
-                        .or_default()
-                        .push(ImageMeta { t_s, ordinal });
-                }
-                CAMERA_INFO_TYPE => {
-                    let ci = RosCameraInfo::decode(data).map_err(at)?;
-                    infos.entry(topic.to_string()).or_default().push(ci);
-                }
-                FLOAT32_TYPE if DEPTH_UNITS_SUFFIXES.iter().any(|x| topic.ends_with(x)) => {
-                    let b: [u8; 4] = data
-                        .get(..4)
-                        .and_then(|b| b.try_into().ok())
-                        .ok_or_else(|| at("truncated message: a Float32 needs 4 bytes".into()))?;
-                    units.insert(topic.to_string(), f32::from_le_bytes(b));
-                }
-                t if cfg.tf && TF_TYPES.contains(&t) => {
-                    let is_static = topic.trim_end_matches('/').ends_with("tf_static");
-                    for x in decode_tf_message(data).map_err(at)? {
-                        let t_s = if x.stamp_s > 0.0 {
-                            x.stamp_s
-                        } else {
-                            time_ns as f64 * 1e-9
-                        };
-                        tf.insert(&x.parent, &x.child, t_s, x.transform, is_static);
-                    }
-                }
-                _ => {}
-            }
-            Ok(())
-        })?;
-        let topics: Vec<TopicInfo> = topics.into_values().collect();
-        let list = |pred: &dyn Fn(&TopicInfo) -> bool| -> Vec<String> {
-            topics
-                .iter()
-                .filter(|t| pred(t))
-                .map(|t| {
-                    format!(
-                        "{} ({}, {})",
-                        t.topic,
-                        t.msg_type,
-                        t.encoding.as_deref().unwrap_or("-")
-                    )
-                })
-                .collect()
-        };
-        let image_topic = |want: &Option<String>,
-                           kind: &str,
-                           is_kind: fn(&str) -> bool,
-                           hints: &[&str]|
-         -> Result<String> {
-            if let Some(t) = want {
-                let Some(info) = topics.iter().find(|i| &i.topic == t) else {
-                    return Err(Error::format(
-                        &path,
-                        format!(
-                            "no topic {t:?}; the image topics are {:?}",
-                            list(&|i| i.msg_type == IMAGE_TYPE)
-                        ),
-                    ));
-                };
-                let enc = info.encoding.as_deref().unwrap_or("");
-                if info.msg_type != IMAGE_TYPE || !is_kind(enc) {
-                    return Err(Error::format(
-                        &path,
-                        format!(
-                            "topic {t} is {} with encoding {enc:?}, not a {kind} image topic",
-                            info.msg_type
-                        ),
-                    ));
-                }
-                return Ok(t.clone());
-            }
-            let cands: Vec<&TopicInfo> = topics
-                .iter()
-                .filter(|i| {
-                    i.msg_type == IMAGE_TYPE && is_kind(i.encoding.as_deref().unwrap_or(""))
-                })
-                .collect();
-            let pick: Vec<&&TopicInfo> = if cands.len() > 1 {
-                cands
-                    .iter()
-                    .filter(|i| {
-                        let l = i.topic.to_ascii_lowercase();
-                        hints.iter().any(|h| l.contains(h))
-                    })
-                    .collect()
-            } else {
-                cands.iter().collect()
-            };
-            match pick.as_slice() {
-                [one] => Ok(one.topic.clone()),
-                [] if cands.is_empty() => Err(Error::format(
-                    &path,
-                    format!(
-                        "no {kind} image topic; the bag's topics are {:?}",
-                        list(&|_| true)
-                    ),
-                )),
-                _ => Err(Error::format(
-                    &path,
-                    format!(
-                        "several {kind} image topics {:?}: choose one with the {kind} topic option",
-                        cands.iter().map(|c| c.topic.as_str()).collect::<Vec<_>>()
-                    ),
-                )),
-            }
-        };
-        let depth_topic = image_topic(&cfg.depth_topic, "depth", is_depth_encoding, &["depth"])?;
-        let want_color = cfg.color || cfg.color_topic.is_some();
-        let color_topic = if want_color {
-            Some(image_topic(
+        let mut scan = scan_messages(&path, &bag, &mut conns, cfg)?;
+        let topics = &scan.topics;
+        let depth_topic = choose_image_topic(
+            &path,
+            topics,
+            &cfg.depth_topic,
+            "depth",
+            is_depth_encoding,
+            &["depth"],
+        )?;
+        let color_topic = if cfg.color || cfg.color_topic.is_some() {
+            Some(choose_image_topic(
+                &path,
+                topics,
                 &cfg.color_topic,
                 "colour",
                 is_color_encoding,
@@ -904,87 +788,16 @@ impl BagRecording {
         } else {
             None
         };
-
-        let info_topic = match &cfg.camera_info_topic {
-            Some(t) => {
-                if !infos.contains_key(t) {
-                    return Err(Error::format(
-                        &path,
-                        format!(
-                            "no {CAMERA_INFO_TYPE} messages on topic {t:?}; camera info topics: {:?}",
-                            infos.keys().collect::<Vec<_>>()
-                        ),
-                    ));
-                }
-                t.clone()
-            }
-            None => {
-                let best = longest_prefix(&depth_topic, infos.keys());
-                match best.as_slice() {
-                    [one] => (*one).clone(),
-                    [] => {
-                        return Err(Error::format(
-                            &path,
-                            format!(
-                                "no {CAMERA_INFO_TYPE} topic: the intrinsics of {depth_topic} are unknown (topics: {:?})",
-                                list(&|_| true)
-                            ),
-                        ))
-                    }
-                    several => {
-                        return Err(Error::format(
-                            &path,
-                            format!(
-                                "several camera info topics fit {depth_topic} equally: {several:?}; choose one with the \
-                                 camera info topic option"
-                            ),
-                        ))
-                    }
-                }
-            }
-        };
+        let info_topic = choose_info_topic(&path, cfg, &scan, &depth_topic)?;
         let depth_info = topics
             .iter()
             .find(|t| t.topic == depth_topic)
             .expect("chosen topic exists");
         let encoding = depth_info.encoding.clone().unwrap_or_default();
-        let (depth_scale, depth_scale_source) = match cfg.depth_scale {
-            Some(s) => (s, "given".to_string()),
-            None if encoding == "32FC1" => (
-                DEFAULT_DEPTH_SCALE,
-                "default 1 mm units for 32FC1 metres".to_string(),
-            ),
-            None => {
-                let best = longest_prefix(&depth_topic, units.keys());
-                match best.first() {
-                    Some(t) if best.len() == 1 => (units[*t] as f64, t.to_string()),
-                    _ => (
-                        DEFAULT_DEPTH_SCALE,
-                        "default 1 mm (ROS REP 118 16-bit depth)".to_string(),
-                    ),
-                }
-            }
-        };
-        if !(depth_scale.is_finite() && depth_scale > 0.0) {
-            return Err(Error::format(
-                &path,
-                format!("depth scale {depth_scale} (from {depth_scale_source}) must be a positive number of metres"),
-            ));
-        }
-        let cis = &infos[&info_topic];
-        let intrinsics = cis[0]
-            .to_intrinsics(depth_scale)
-            .map_err(|m| Error::format(&path, format!("topic {info_topic} message 1: {m}")))?;
-        if let Some(k) = cis.iter().position(|c| c != &cis[0]) {
-            return Err(Error::format(
-                &path,
-                format!(
-                    "topic {info_topic}: message {} differs from message 1; depthcal imports recordings with fixed \
-                     intrinsics",
-                    k + 1
-                ),
-            ));
-        }
+        let (depth_scale, depth_scale_source) =
+            depth_scale_of(&path, cfg, &encoding, &depth_topic, &scan.units)?;
+        let intrinsics =
+            fixed_intrinsics(&path, &scan.infos[&info_topic], &info_topic, depth_scale)?;
         if let Some((w, h)) = depth_info.size {
             if (w, h) != (intrinsics.width, intrinsics.height) {
                 return Err(Error::format(
@@ -996,26 +809,11 @@ impl BagRecording {
                 ));
             }
         }
-        let stream = |topic: &str| -> StreamFrames {
-            let mut frames: Vec<FrameStamp> = images
-                .get(topic)
-                .map(|v| {
-                    v.iter()
-                        .map(|m| FrameStamp {
-                            t_s: m.t_s,
-                            key: m.ordinal,
-                        })
-                        .collect()
-                })
-                .unwrap_or_default();
-            frames.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
-            StreamFrames {
-                name: topic.to_string(),
-                frames,
-            }
-        };
-        let depth = stream(&depth_topic);
-        let color = color_topic.as_deref().map(stream);
+        let depth = image_stream(&scan.images, &depth_topic);
+        let color = color_topic
+            .as_deref()
+            .map(|t| image_stream(&scan.images, t));
+        scan.tf.finish();
         Ok(BagRecording {
             info: RecordingInfo {
                 path,
@@ -1025,14 +823,311 @@ impl BagRecording {
             },
             bag,
             conns,
-            topics,
+            topics: scan.topics,
             camera_info_topic: info_topic,
             depth_scale_source,
-            tf: {
-                tf.finish();
-                tf
-            },
+            tf: scan.tf,
         })
+    }
+}
+
+/// The bag's header and record lengths are checked against the file before the rosbag crate reads it.
+fn check_bag_file(path: &Path) -> Result<()> {
+    use std::io::Read;
+    let mut head = Vec::with_capacity(4096);
+    std::fs::File::open(path)
+        .and_then(|f| f.take(1 << 16).read_to_end(&mut head))
+        .map_err(|e| Error::io(path, e))?;
+    let len = std::fs::metadata(path)
+        .map_err(|e| Error::io(path, e))?
+        .len();
+    check_bag_header(path, &head, len)?;
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    check_bag_records(path, file, len)
+}
+
+/// The first pass over every message: topics, image stamps, camera infos, depth-units options and (when
+/// `cfg.tf`) the TF transforms.
+fn scan_messages(
+    path: &Path,
+    bag: &RosBag,
+    conns: &mut HashMap<u32, (String, String)>,
+    cfg: &BagImportConfig,
+) -> Result<BagScan> {
+    let mut topics: BTreeMap<String, TopicInfo> = BTreeMap::new();
+    let mut images: HashMap<String, Vec<ImageMeta>> = HashMap::new();
+    let mut infos: HashMap<String, Vec<RosCameraInfo>> = HashMap::new();
+    let mut units: HashMap<String, f32> = HashMap::new();
+    let mut tf = super::tf::TfBuffer::new();
+    for_each_message(path, bag, conns, |topic, tp, time_ns, data| {
+        let info = topics
+            .entry(topic.to_string())
+            .or_insert_with(|| TopicInfo {
+                topic: topic.to_string(),
+                msg_type: tp.to_string(),
+                messages: 0,
+                encoding: None,
+                size: None,
+            });
+        let ordinal = info.messages as u64;
+        info.messages += 1;
+        let at = |msg: String| {
+            Error::format(
+                path,
+                format!("topic {topic} message {}: {tp}: {msg}", ordinal + 1),
+            )
+        };
+        // A message's own stamp, or the bag's receive time when the stamp is zero.
+        let stamp = |s: f64| if s > 0.0 { s } else { time_ns as f64 * 1e-9 };
+        match tp {
+            IMAGE_TYPE => {
+                let img = RosImage::decode(data).map_err(at)?;
+                if info.encoding.is_none() {
+                    info.encoding = Some(img.encoding.to_string());
+                    info.size = Some((img.width, img.height));
+                }
+                images
+                    .entry(topic.to_string())
+                    .or_default()
+                    .push(ImageMeta {
+                        t_s: stamp(img.stamp_s),
+                        ordinal,
+                    });
+            }
+            CAMERA_INFO_TYPE => {
+                let ci = RosCameraInfo::decode(data).map_err(at)?;
+                infos.entry(topic.to_string()).or_default().push(ci);
+            }
+            FLOAT32_TYPE if DEPTH_UNITS_SUFFIXES.iter().any(|x| topic.ends_with(x)) => {
+                let b: [u8; 4] = data
+                    .get(..4)
+                    .and_then(|b| b.try_into().ok())
+                    .ok_or_else(|| at("truncated message: a Float32 needs 4 bytes".into()))?;
+                units.insert(topic.to_string(), f32::from_le_bytes(b));
+            }
+            t if cfg.tf && TF_TYPES.contains(&t) => {
+                let is_static = topic.trim_end_matches('/').ends_with("tf_static");
+                for x in decode_tf_message(data).map_err(at)? {
+                    tf.insert(
+                        &x.parent,
+                        &x.child,
+                        stamp(x.stamp_s),
+                        x.transform,
+                        is_static,
+                    );
+                }
+            }
+            _ => {}
+        }
+        Ok(())
+    })?;
+    Ok(BagScan {
+        topics: topics.into_values().collect(),
+        images,
+        infos,
+        units,
+        tf,
+    })
+}
+
+/// `topic (type, encoding)` of every topic that `pred` keeps, for error messages.
+fn describe_topics(topics: &[TopicInfo], pred: impl Fn(&TopicInfo) -> bool) -> Vec<String> {
+    topics
+        .iter()
+        .filter(|t| pred(t))
+        .map(|t| {
+            format!(
+                "{} ({}, {})",
+                t.topic,
+                t.msg_type,
+                t.encoding.as_deref().unwrap_or("-")
+            )
+        })
+        .collect()
+}
+
+/// The image topic of a `kind` (depth or colour): the one asked for (checked), else the only candidate, or
+/// among several the only one whose name contains one of `hints`.
+fn choose_image_topic(
+    path: &Path,
+    topics: &[TopicInfo],
+    want: &Option<String>,
+    kind: &str,
+    is_kind: fn(&str) -> bool,
+    hints: &[&str],
+) -> Result<String> {
+    if let Some(t) = want {
+        let Some(info) = topics.iter().find(|i| &i.topic == t) else {
+            return Err(Error::format(
+                path,
+                format!(
+                    "no topic {t:?}; the image topics are {:?}",
+                    describe_topics(topics, |i| i.msg_type == IMAGE_TYPE)
+                ),
+            ));
+        };
+        let enc = info.encoding.as_deref().unwrap_or("");
+        if info.msg_type != IMAGE_TYPE || !is_kind(enc) {
+            return Err(Error::format(
+                path,
+                format!(
+                    "topic {t} is {} with encoding {enc:?}, not a {kind} image topic",
+                    info.msg_type
+                ),
+            ));
+        }
+        return Ok(t.clone());
+    }
+    let cands: Vec<&TopicInfo> = topics
+        .iter()
+        .filter(|i| i.msg_type == IMAGE_TYPE && is_kind(i.encoding.as_deref().unwrap_or("")))
+        .collect();
+    let pick: Vec<&&TopicInfo> = if cands.len() > 1 {
+        cands
+            .iter()
+            .filter(|i| {
+                let l = i.topic.to_ascii_lowercase();
+                hints.iter().any(|h| l.contains(h))
+            })
+            .collect()
+    } else {
+        cands.iter().collect()
+    };
+    match pick.as_slice() {
+        [one] => Ok(one.topic.clone()),
+        [] if cands.is_empty() => Err(Error::format(
+            path,
+            format!(
+                "no {kind} image topic; the bag's topics are {:?}",
+                describe_topics(topics, |_| true)
+            ),
+        )),
+        _ => Err(Error::format(
+            path,
+            format!(
+                "several {kind} image topics {:?}: choose one with the {kind} topic option",
+                cands.iter().map(|c| c.topic.as_str()).collect::<Vec<_>>()
+            ),
+        )),
+    }
+}
+
+/// The camera info topic: the one asked for (checked), else the one sharing the longest prefix with the
+/// depth topic.
+fn choose_info_topic(
+    path: &Path,
+    cfg: &BagImportConfig,
+    scan: &BagScan,
+    depth_topic: &str,
+) -> Result<String> {
+    if let Some(t) = &cfg.camera_info_topic {
+        if !scan.infos.contains_key(t) {
+            return Err(Error::format(
+                path,
+                format!(
+                    "no {CAMERA_INFO_TYPE} messages on topic {t:?}; camera info topics: {:?}",
+                    scan.infos.keys().collect::<Vec<_>>()
+                ),
+            ));
+        }
+        return Ok(t.clone());
+    }
+    match longest_prefix(depth_topic, scan.infos.keys()).as_slice() {
+        [one] => Ok((*one).clone()),
+        [] => Err(Error::format(
+            path,
+            format!(
+                "no {CAMERA_INFO_TYPE} topic: the intrinsics of {depth_topic} are unknown (topics: {:?})",
+                describe_topics(&scan.topics, |_| true)
+            ),
+        )),
+        several => Err(Error::format(
+            path,
+            format!(
+                "several camera info topics fit {depth_topic} equally: {several:?}; choose one with the \
+                 camera info topic option"
+            ),
+        )),
+    }
+}
+
+/// The depth scale in metres per unit and where it came from: given, the 32FC1 convention, the depth-units
+/// option topic of the depth topic, or ROS REP 118's 1 mm.
+fn depth_scale_of(
+    path: &Path,
+    cfg: &BagImportConfig,
+    encoding: &str,
+    depth_topic: &str,
+    units: &HashMap<String, f32>,
+) -> Result<(f64, String)> {
+    let (depth_scale, source) = match cfg.depth_scale {
+        Some(s) => (s, "given".to_string()),
+        None if encoding == "32FC1" => (
+            DEFAULT_DEPTH_SCALE,
+            "default 1 mm units for 32FC1 metres".to_string(),
+        ),
+        None => {
+            let best = longest_prefix(depth_topic, units.keys());
+            match best.first() {
+                Some(t) if best.len() == 1 => (units[*t] as f64, t.to_string()),
+                _ => (
+                    DEFAULT_DEPTH_SCALE,
+                    "default 1 mm (ROS REP 118 16-bit depth)".to_string(),
+                ),
+            }
+        }
+    };
+    if !(depth_scale.is_finite() && depth_scale > 0.0) {
+        return Err(Error::format(
+            path,
+            format!(
+                "depth scale {depth_scale} (from {source}) must be a positive number of metres"
+            ),
+        ));
+    }
+    Ok((depth_scale, source))
+}
+
+/// The intrinsics of the first camera info message; every later message must be the same.
+fn fixed_intrinsics(
+    path: &Path,
+    cis: &[RosCameraInfo],
+    info_topic: &str,
+    depth_scale: f64,
+) -> Result<Intrinsics> {
+    let intrinsics = cis[0]
+        .to_intrinsics(depth_scale)
+        .map_err(|m| Error::format(path, format!("topic {info_topic} message 1: {m}")))?;
+    if let Some(k) = cis.iter().position(|c| c != &cis[0]) {
+        return Err(Error::format(
+            path,
+            format!(
+                "topic {info_topic}: message {} differs from message 1; depthcal imports recordings with fixed \
+                 intrinsics",
+                k + 1
+            ),
+        ));
+    }
+    Ok(intrinsics)
+}
+
+/// An image topic's frames in time order.
+fn image_stream(images: &HashMap<String, Vec<ImageMeta>>, topic: &str) -> StreamFrames {
+    let mut frames: Vec<FrameStamp> = images
+        .get(topic)
+        .map(|v| {
+            v.iter()
+                .map(|m| FrameStamp {
+                    t_s: m.t_s,
+                    key: m.ordinal,
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    frames.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
+    StreamFrames {
+        name: topic.to_string(),
+        frames,
     }
 }
 

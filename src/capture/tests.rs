@@ -288,3 +288,49 @@ fn append_creates_then_extends_and_never_overwrites() {
     assert_eq!(cell.robots.len(), 2);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn import_settings_are_checked_and_name_the_field() {
+    let field = |r: Result<()>| match r {
+        Err(Error::Config { field, .. }) => field,
+        other => panic!("expected a configuration error, got {other:?}"),
+    };
+    MatchConfig::default().validate().unwrap();
+    let bad_time = MatchConfig {
+        mode: MatchMode::Time { tolerance_s: -0.1 },
+        ..Default::default()
+    };
+    assert_eq!(field(bad_time.validate()), "mode.tolerance_s");
+    let bad_color = MatchConfig {
+        color_tolerance_s: f64::NAN,
+        ..Default::default()
+    };
+    assert_eq!(field(bad_color.validate()), "color_tolerance_s");
+    // match_frames refuses the bad settings before it looks at the frames.
+    let r = rows("frame,t_s,x_mm,y_mm,z_mm,a_deg,b_deg,c_deg\na,1.5,1,2,3,0,0,0\n");
+    let e = match_frames(
+        &r,
+        &stamps("depth", &[1.5]),
+        None,
+        &bad_time,
+        Path::new("r.bag"),
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("tolerance_s"), "{e}");
+
+    #[cfg(feature = "rosbag")]
+    {
+        use crate::capture::rosbag::BagImportConfig;
+        BagImportConfig::default().validate().unwrap();
+        let c = BagImportConfig {
+            depth_scale: Some(0.0),
+            ..Default::default()
+        };
+        assert_eq!(field(c.validate()), "depth_scale");
+        let c = BagImportConfig {
+            color_topic: Some(" ".into()),
+            ..Default::default()
+        };
+        assert_eq!(field(c.validate()), "color_topic");
+    }
+}

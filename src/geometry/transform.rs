@@ -9,6 +9,27 @@ use nalgebra::{
 /// Largest deviation from orthonormality (max |RᵀR − I| entry) accepted for a rotation read from input.
 pub const ORTHONORMAL_TOLERANCE: f64 = 1e-3;
 
+/// The proper rotation nearest to `m` in the Frobenius norm (the polar factor, by SVD: `U·D·Vᵀ` with `D`
+/// flipping the direction of the smallest singular value when `U·Vᵀ` is a reflection). `None` when `m` has
+/// rank below 2 (the rotation is then undetermined). The one projection of the crate: Arun/Umeyama's
+/// rigid fit takes it of `Hᵀ`, the hand-eye closed forms of their rotation estimates.
+pub fn nearest_rotation(m: &Matrix3<f64>) -> Option<Rotation3<f64>> {
+    let svd = m.svd(true, true);
+    let (u, vt) = (svd.u?, svd.v_t?);
+    let s = svd.singular_values;
+    let mut sorted = [s[0], s[1], s[2]];
+    sorted.sort_by(|a, b| b.total_cmp(a));
+    if sorted[0] <= 0.0 || sorted[1] <= 1e-12 * sorted[0] {
+        return None;
+    }
+    let mut d = Matrix3::identity();
+    if (u * vt).determinant() < 0.0 {
+        let k = s.imin();
+        d[(k, k)] = -1.0;
+    }
+    Some(Rotation3::from_matrix_unchecked(u * d * vt))
+}
+
 /// Builds an isometry from a 4x4 row-major matrix, checking that it is rigid.
 ///
 /// The bottom row must be `0 0 0 1` and the rotation block orthonormal with determinant +1 (within

@@ -3,6 +3,7 @@
 
 use crate::error::{Error, Result};
 use crate::geometry::PointCloud;
+use std::borrow::Cow;
 use std::path::Path;
 
 #[derive(Clone, Debug)]
@@ -88,15 +89,92 @@ fn lzf_decompress(input: &[u8], out_len: usize) -> std::result::Result<Vec<u8>, 
     Ok(out)
 }
 
-/// Reads a PCD file.
+/// What the header's key lines say, before they are checked against each other.
+#[derive(Default)]
+struct RawHeader {
+    names: Vec<String>,
+    sizes: Vec<usize>,
+    types: Vec<u8>,
+    counts: Vec<usize>,
+    width: Option<usize>,
+    height: Option<usize>,
+    points: Option<usize>,
+    /// The `DATA` kind, lower case (`ascii`, `binary`, `binary_compressed`).
+    data_kind: String,
+    /// Byte offset of the first byte after the `DATA` line.
+    data_start: usize,
+}
+
+/// A checked header: the fields with their byte layout in a binary record, and the point count.
+struct Header {
+    fields: Vec<Field>,
+    /// Bytes per point in a binary record.
+    record: usize,
+    /// Points in the file.
+    n: usize,
+    data_kind: String,
+    data_start: usize,
+}
+
+/// The values of every point, row-major (rows = points, columns = fields, first element of each), and the
+/// raw bits of the packed rgb field when there is one.
+struct Table {
+    values: Vec<f64>,
+    rgb_bits: Vec<u32>,
+}
+
+/// Reads a PCD file: the header's lines, their layout, the data in its encoding, then the cloud.
 pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
     let err = |msg: String| Error::format(path, msg);
+    let header = layout(scan_header(bytes, &err)?, &err)?;
+    let find = |names: &[&str]| {
+        header
+            .fields
+            .iter()
+            .position(|f| names.contains(&f.name.as_str()))
+    };
+    let [Some(fx), Some(fy), Some(fz)] = [find(&["x"]), find(&["y"]), find(&["z"])] else {
+        return Err(err("FIELDS must include x, y and z".into()));
+    };
+    let fnorm = [
+        find(&["normal_x", "nx"]),
+        find(&["normal_y", "ny"]),
+        find(&["normal_z", "nz"]),
+    ];
+    let frgb = find(&["rgb", "rgba"]);
+    let table = match header.data_kind.as_str() {
+        "ascii" => read_ascii(&header, bytes, frgb, &err)?,
+        "binary" | "binary_compressed" => {
+            let data = binary_records(&header, bytes, &err)?;
+            read_binary(&header, &data, frgb)
+        }
+        other => {
+            return Err(err(format!(
+                "DATA `{other}` is not supported (ascii, binary, binary_compressed)"
+            )))
+        }
+    };
+    let (n, nf) = (header.n, header.fields.len());
+    let get = |i: usize, j: usize| table.values[i * nf + j] as f32;
+    let normals = match fnorm {
+        [Some(a), Some(b), Some(c)] => {
+            Some((0..n).map(|i| [get(i, a), get(i, b), get(i, c)]).collect())
+        }
+        _ => None,
+    };
+    Ok(PointCloud {
+        points: (0..n)
+            .map(|i| [get(i, fx), get(i, fy), get(i, fz)])
+            .collect(),
+        normals,
+        colors: frgb.map(|_| table.rgb_bits.iter().map(|&b| rgb_from_bits(b)).collect()),
+    })
+}
+
+/// Reads the header's lines up to and including `DATA`.
+fn scan_header(bytes: &[u8], err: &impl Fn(String) -> Error) -> Result<RawHeader> {
+    let mut raw = RawHeader::default();
     let mut pos = 0;
-    let mut fields: Vec<Field> = Vec::new();
-    let (mut sizes, mut types, mut counts) = (Vec::new(), Vec::new(), Vec::new());
-    let mut npoints: Option<usize> = None;
-    let (mut width, mut height) = (None, None);
-    let data_kind;
     let mut lineno = 0;
     loop {
         if pos >= bytes.len() {
@@ -122,85 +200,64 @@ pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
             s.parse::<usize>()
                 .map_err(|_| err(format!("line {lineno}: {what} `{s}` is not a count")))
         };
+        let first = rest.first().copied().unwrap_or("");
         match key.as_str() {
             "VERSION" | "VIEWPOINT" => {}
-            "FIELDS" => {
-                fields = rest
-                    .iter()
-                    .map(|n| Field {
-                        name: n.to_string(),
-                        size: 4,
-                        kind: b'F',
-                        count: 1,
-                        offset: 0,
-                    })
-                    .collect()
-            }
+            "FIELDS" => raw.names = rest.iter().map(|n| n.to_string()).collect(),
             "SIZE" => {
-                sizes = rest
+                raw.sizes = rest
                     .iter()
                     .map(|s| parse_usize(s, "SIZE"))
                     .collect::<Result<_>>()?
             }
-            "TYPE" => types = rest.iter().map(|s| s.as_bytes()[0]).collect(),
+            "TYPE" => raw.types = rest.iter().map(|s| s.as_bytes()[0]).collect(),
             "COUNT" => {
-                counts = rest
+                raw.counts = rest
                     .iter()
                     .map(|s| parse_usize(s, "COUNT"))
                     .collect::<Result<_>>()?
             }
-            "WIDTH" => width = Some(parse_usize(rest.first().unwrap_or(&""), "WIDTH")?),
-            "HEIGHT" => height = Some(parse_usize(rest.first().unwrap_or(&""), "HEIGHT")?),
-            "POINTS" => npoints = Some(parse_usize(rest.first().unwrap_or(&""), "POINTS")?),
+            "WIDTH" => raw.width = Some(parse_usize(first, "WIDTH")?),
+            "HEIGHT" => raw.height = Some(parse_usize(first, "HEIGHT")?),
+            "POINTS" => raw.points = Some(parse_usize(first, "POINTS")?),
             "DATA" => {
-                data_kind = rest.first().unwrap_or(&"").to_ascii_lowercase();
-                break;
+                raw.data_kind = first.to_ascii_lowercase();
+                raw.data_start = pos;
+                return Ok(raw);
             }
             other => return Err(err(format!("line {lineno}: unknown header key `{other}`"))),
         }
     }
-    if fields.is_empty() {
+}
+
+/// Checks the header's lines against each other and lays the fields out in a binary record.
+fn layout(raw: RawHeader, err: &impl Fn(String) -> Error) -> Result<Header> {
+    if raw.names.is_empty() {
         return Err(err("header has no FIELDS line".into()));
     }
-    let nf = fields.len();
-    if !sizes.is_empty() && sizes.len() != nf
-        || !types.is_empty() && types.len() != nf
-        || !counts.is_empty() && counts.len() != nf
+    let nf = raw.names.len();
+    if !raw.sizes.is_empty() && raw.sizes.len() != nf
+        || !raw.types.is_empty() && raw.types.len() != nf
+        || !raw.counts.is_empty() && raw.counts.len() != nf
     {
         return Err(err(format!(
             "FIELDS names {nf} fields but SIZE/TYPE/COUNT give {}/{}/{}",
-            sizes.len(),
-            types.len(),
-            counts.len()
+            raw.sizes.len(),
+            raw.types.len(),
+            raw.counts.len()
         )));
     }
+    let mut fields = Vec::with_capacity(nf);
     let mut offset = 0usize;
-    for (k, f) in fields.iter_mut().enumerate() {
-        f.size = *sizes.get(k).unwrap_or(&4);
-        f.kind = *types.get(k).unwrap_or(&b'F');
-        f.count = *counts.get(k).unwrap_or(&1);
-        if !matches!(
-            (f.kind, f.size),
-            (b'F', 4 | 8) | (b'I' | b'U', 1 | 2 | 4 | 8)
-        ) {
-            return Err(err(format!(
-                "field `{}` has unsupported TYPE {} SIZE {}",
-                f.name, f.kind as char, f.size
-            )));
-        }
-        if f.count == 0 {
-            return Err(err(format!(
-                "field `{}` has COUNT 0; every field needs COUNT of at least 1",
-                f.name
-            )));
-        }
-        if matches!(f.name.as_str(), "rgb" | "rgba") && f.size != 4 {
-            return Err(err(format!(
-                "field `{}` has SIZE {}; a packed rgb/rgba field must have SIZE 4",
-                f.name, f.size
-            )));
-        }
-        f.offset = offset;
+    for (k, name) in raw.names.into_iter().enumerate() {
+        let f = Field {
+            name,
+            size: *raw.sizes.get(k).unwrap_or(&4),
+            kind: *raw.types.get(k).unwrap_or(&b'F'),
+            count: *raw.counts.get(k).unwrap_or(&1),
+            offset,
+        };
+        check_field(&f, err)?;
         offset = f
             .size
             .checked_mul(f.count)
@@ -211,195 +268,234 @@ pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
                     f.name, f.size, f.count
                 ))
             })?;
+        fields.push(f);
     }
-    let record = offset;
-    let n = match (npoints, width) {
+    let n = match (raw.points, raw.width) {
         (Some(n), _) => n,
-        (None, Some(w)) => w.checked_mul(height.unwrap_or(1)).ok_or_else(|| {
+        (None, Some(w)) => w.checked_mul(raw.height.unwrap_or(1)).ok_or_else(|| {
             err(format!(
                 "WIDTH {w} x HEIGHT {} overflows the point count",
-                height.unwrap_or(1)
+                raw.height.unwrap_or(1)
             ))
         })?,
         (None, None) => return Err(err("header has neither POINTS nor WIDTH".into())),
     };
-    let find = |names: &[&str]| fields.iter().position(|f| names.contains(&f.name.as_str()));
-    let ix = [find(&["x"]), find(&["y"]), find(&["z"])];
-    let [Some(fx), Some(fy), Some(fz)] = ix else {
-        return Err(err("FIELDS must include x, y and z".into()));
-    };
-    let fnorm = [
-        find(&["normal_x", "nx"]),
-        find(&["normal_y", "ny"]),
-        find(&["normal_z", "nz"]),
-    ];
-    let has_normals = fnorm.iter().all(|f| f.is_some());
-    let frgb = find(&["rgb", "rgba"]);
-    let data_len = bytes.len() - pos;
+    Ok(Header {
+        fields,
+        record: offset,
+        n,
+        data_kind: raw.data_kind,
+        data_start: raw.data_start,
+    })
+}
+
+/// A field's type, size and count must be ones depthcal reads.
+fn check_field(f: &Field, err: &impl Fn(String) -> Error) -> Result<()> {
+    if !matches!(
+        (f.kind, f.size),
+        (b'F', 4 | 8) | (b'I' | b'U', 1 | 2 | 4 | 8)
+    ) {
+        return Err(err(format!(
+            "field `{}` has unsupported TYPE {} SIZE {}",
+            f.name, f.kind as char, f.size
+        )));
+    }
+    if f.count == 0 {
+        return Err(err(format!(
+            "field `{}` has COUNT 0; every field needs COUNT of at least 1",
+            f.name
+        )));
+    }
+    if matches!(f.name.as_str(), "rgb" | "rgba") && f.size != 4 {
+        return Err(err(format!(
+            "field `{}` has SIZE {}; a packed rgb/rgba field must have SIZE 4",
+            f.name, f.size
+        )));
+    }
+    Ok(())
+}
+
+/// `DATA ascii`: one line per point, whitespace-separated values, `nan` allowed.
+fn read_ascii(
+    h: &Header,
+    bytes: &[u8],
+    frgb: Option<usize>,
+    err: &impl Fn(String) -> Error,
+) -> Result<Table> {
+    let (n, nf) = (h.n, h.fields.len());
+    let data_len = bytes.len() - h.data_start;
     // Values per point in the file (a field of COUNT k has k of them); each needs at least one character and a
-    // separator in ASCII, and every size below is checked against the data's length before anything is
-    // allocated, so a header claiming more points than the file can hold is an error, not an allocation.
-    let per_point = fields
+    // separator, and the size is checked against the data's length before anything is allocated, so a header
+    // claiming more points than the file can hold is an error, not an allocation.
+    let per_point = h
+        .fields
         .iter()
         .try_fold(0usize, |a, f| a.checked_add(f.count))
         .ok_or_else(|| err("the COUNTs overflow".into()))?;
-    let too_many = |need: Option<usize>, what: &str| {
-        err(format!(
-            "header says {n} points ({}), but the file has only {data_len} bytes of data",
-            match need {
-                Some(b) => format!("at least {b} bytes of {what}"),
-                None => format!("more bytes of {what} than can be counted"),
-            }
-        ))
+    let need = n.checked_mul(per_point).and_then(|v| v.checked_mul(2));
+    if need.is_none_or(|b| b > data_len + 1) {
+        return Err(too_many(
+            n,
+            data_len,
+            need.map(|b| b.saturating_sub(1)),
+            "ASCII data",
+            err,
+        ));
+    }
+    let mut table = Table {
+        values: Vec::with_capacity(n * nf),
+        rgb_bits: Vec::new(),
     };
-
-    // A row-major table of values: rows = points, columns = fields (first element of each).
-    let mut values: Vec<f64>;
-    let mut rgb_bits: Vec<u32> = Vec::new();
-    match data_kind.as_str() {
-        "ascii" => {
-            let need = n.checked_mul(per_point).and_then(|v| v.checked_mul(2));
-            if need.is_none_or(|b| b > data_len + 1) {
-                return Err(too_many(need.map(|b| b.saturating_sub(1)), "ASCII data"));
-            }
-            values = Vec::with_capacity(n * nf);
-            let text = std::str::from_utf8(&bytes[pos..])
-                .map_err(|_| err("ASCII data is not text".into()))?;
-            let mut row = 0;
-            for (k, line) in text.lines().enumerate() {
-                let line = line.trim();
-                if line.is_empty() {
-                    continue;
-                }
-                if row >= n {
-                    return Err(err(format!(
-                        "data line {}: more points than the header's {n}",
-                        k + 1
-                    )));
-                }
-                let toks: Vec<&str> = line.split_whitespace().collect();
-                let mut t = 0;
-                for (j, f) in fields.iter().enumerate() {
-                    let tok = toks.get(t).ok_or_else(|| {
-                        err(format!(
-                            "data line {} (point {row}): missing field `{}`",
-                            k + 1,
-                            f.name
-                        ))
-                    })?;
-                    let v: f64 = if tok.eq_ignore_ascii_case("nan") {
-                        f64::NAN
-                    } else {
-                        tok.parse().map_err(|_| {
-                            err(format!(
-                                "data line {} (point {row}): field `{}` value `{tok}` is not a number",
-                                k + 1,
-                                f.name
-                            ))
-                        })?
-                    };
-                    values.push(v);
-                    if Some(j) == frgb {
-                        rgb_bits.push(if f.kind == b'F' {
-                            (v as f32).to_bits()
-                        } else {
-                            v as u32
-                        });
-                    }
-                    t += f.count;
-                }
-                row += 1;
-            }
-            if row != n {
-                return Err(err(format!("header says {n} points, the data has {row}")));
-            }
+    let text = std::str::from_utf8(&bytes[h.data_start..])
+        .map_err(|_| err("ASCII data is not text".into()))?;
+    let mut row = 0;
+    for (k, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() {
+            continue;
         }
-        "binary" | "binary_compressed" => {
-            let need = n.checked_mul(record);
-            let data: std::borrow::Cow<[u8]> = if data_kind == "binary" {
-                let need = match need {
-                    Some(b) if b <= data_len => b,
-                    _ => {
-                        return Err(err(format!(
-                            "binary data is truncated: header says {n} points ({} bytes), file has {data_len} bytes",
-                            need.map_or("too many".to_string(), |b| b.to_string())
-                        )))
-                    }
-                };
-                std::borrow::Cow::Borrowed(&bytes[pos..pos + need])
-            } else {
-                if data_len < 8 {
-                    return Err(err("binary_compressed data is truncated".into()));
-                }
-                let csize = u32::from_le_bytes(bytes[pos..pos + 4].try_into().unwrap()) as usize;
-                let usize_ =
-                    u32::from_le_bytes(bytes[pos + 4..pos + 8].try_into().unwrap()) as usize;
-                if need != Some(usize_) {
-                    return Err(err(format!(
-                        "binary_compressed: uncompressed size {usize_} does not match {n} points of {record} bytes"
-                    )));
-                }
-                if csize > data_len - 8 {
-                    return Err(err(format!(
-                        "binary_compressed data is truncated: the compressed size says {csize} bytes, the file has {} after it",
-                        data_len - 8
-                    )));
-                }
-                if usize_ > csize.saturating_mul(LZF_MAX_RATIO) {
-                    return Err(err(format!(
-                        "binary_compressed: uncompressed size {usize_} is impossible from {csize} bytes of LZF data \
-                         (at most {LZF_MAX_RATIO} times larger)"
-                    )));
-                }
-                let src = &bytes[pos + 8..pos + 8 + csize];
-                let soa = lzf_decompress(src, usize_)
-                    .map_err(|m| err(format!("binary_compressed: {m}")))?;
-                // Convert the field-major layout into point-major records.
-                let mut aos = vec![0u8; usize_];
-                let mut base = 0;
-                for f in &fields {
-                    let fb = f.bytes();
-                    for i in 0..n {
-                        aos[i * record + f.offset..i * record + f.offset + fb]
-                            .copy_from_slice(&soa[base + i * fb..base + (i + 1) * fb]);
-                    }
-                    base += fb * n;
-                }
-                std::borrow::Cow::Owned(aos)
-            };
-            // n * record <= data length and record >= nf, so this fits.
-            values = vec![0f64; n * nf];
-            if frgb.is_some() {
-                rgb_bits = vec![0u32; n];
-            }
-            for i in 0..n {
-                let rec = &data[i * record..(i + 1) * record];
-                for (j, f) in fields.iter().enumerate() {
-                    let b = &rec[f.offset..];
-                    values[i * nf + j] = f.read(b);
-                    if Some(j) == frgb {
-                        rgb_bits[i] = u32::from_le_bytes(b[..4].try_into().unwrap());
-                    }
-                }
-            }
-        }
-        other => {
+        if row >= n {
             return Err(err(format!(
-                "DATA `{other}` is not supported (ascii, binary, binary_compressed)"
-            )))
+                "data line {}: more points than the header's {n}",
+                k + 1
+            )));
+        }
+        let toks: Vec<&str> = line.split_whitespace().collect();
+        let mut t = 0;
+        for (j, f) in h.fields.iter().enumerate() {
+            let tok = toks.get(t).ok_or_else(|| {
+                err(format!(
+                    "data line {} (point {row}): missing field `{}`",
+                    k + 1,
+                    f.name
+                ))
+            })?;
+            let v: f64 = if tok.eq_ignore_ascii_case("nan") {
+                f64::NAN
+            } else {
+                tok.parse().map_err(|_| {
+                    err(format!(
+                        "data line {} (point {row}): field `{}` value `{tok}` is not a number",
+                        k + 1,
+                        f.name
+                    ))
+                })?
+            };
+            table.values.push(v);
+            if Some(j) == frgb {
+                table.rgb_bits.push(if f.kind == b'F' {
+                    (v as f32).to_bits()
+                } else {
+                    v as u32
+                });
+            }
+            t += f.count;
+        }
+        row += 1;
+    }
+    if row != n {
+        return Err(err(format!("header says {n} points, the data has {row}")));
+    }
+    Ok(table)
+}
+
+/// The error for a header that claims more points than the data can hold.
+fn too_many(
+    n: usize,
+    data_len: usize,
+    need: Option<usize>,
+    what: &str,
+    err: &impl Fn(String) -> Error,
+) -> Error {
+    err(format!(
+        "header says {n} points ({}), but the file has only {data_len} bytes of data",
+        match need {
+            Some(b) => format!("at least {b} bytes of {what}"),
+            None => format!("more bytes of {what} than can be counted"),
+        }
+    ))
+}
+
+/// `DATA binary` and `binary_compressed`: the point-major records (`n × record` bytes), decompressed and
+/// reordered from PCL's field-major layout for the latter. Every size is checked against the file first.
+fn binary_records<'a>(
+    h: &Header,
+    bytes: &'a [u8],
+    err: &impl Fn(String) -> Error,
+) -> Result<Cow<'a, [u8]>> {
+    let (n, record, pos) = (h.n, h.record, h.data_start);
+    let data_len = bytes.len() - pos;
+    let need = n.checked_mul(record);
+    if h.data_kind == "binary" {
+        return match need {
+            Some(b) if b <= data_len => Ok(Cow::Borrowed(&bytes[pos..pos + b])),
+            _ => Err(err(format!(
+                "binary data is truncated: header says {n} points ({} bytes), file has {data_len} bytes",
+                need.map_or("too many".to_string(), |b| b.to_string())
+            ))),
+        };
+    }
+    if data_len < 8 {
+        return Err(err("binary_compressed data is truncated".into()));
+    }
+    let le_u32 = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap()) as usize;
+    let (csize, usize_) = (le_u32(pos), le_u32(pos + 4));
+    if need != Some(usize_) {
+        return Err(err(format!(
+            "binary_compressed: uncompressed size {usize_} does not match {n} points of {record} bytes"
+        )));
+    }
+    if csize > data_len - 8 {
+        return Err(err(format!(
+            "binary_compressed data is truncated: the compressed size says {csize} bytes, the file has {} after it",
+            data_len - 8
+        )));
+    }
+    if usize_ > csize.saturating_mul(LZF_MAX_RATIO) {
+        return Err(err(format!(
+            "binary_compressed: uncompressed size {usize_} is impossible from {csize} bytes of LZF data \
+             (at most {LZF_MAX_RATIO} times larger)"
+        )));
+    }
+    let soa = lzf_decompress(&bytes[pos + 8..pos + 8 + csize], usize_)
+        .map_err(|m| err(format!("binary_compressed: {m}")))?;
+    // Convert the field-major layout into point-major records.
+    let mut aos = vec![0u8; usize_];
+    let mut base = 0;
+    for f in &h.fields {
+        let fb = f.bytes();
+        for i in 0..n {
+            aos[i * record + f.offset..i * record + f.offset + fb]
+                .copy_from_slice(&soa[base + i * fb..base + (i + 1) * fb]);
+        }
+        base += fb * n;
+    }
+    Ok(Cow::Owned(aos))
+}
+
+/// The values of point-major binary records.
+fn read_binary(h: &Header, data: &[u8], frgb: Option<usize>) -> Table {
+    let (n, nf, record) = (h.n, h.fields.len(), h.record);
+    // n * record <= data length and record >= nf, so this fits.
+    let mut table = Table {
+        values: vec![0f64; n * nf],
+        rgb_bits: if frgb.is_some() {
+            vec![0u32; n]
+        } else {
+            Vec::new()
+        },
+    };
+    for i in 0..n {
+        let rec = &data[i * record..(i + 1) * record];
+        for (j, f) in h.fields.iter().enumerate() {
+            let b = &rec[f.offset..];
+            table.values[i * nf + j] = f.read(b);
+            if Some(j) == frgb {
+                table.rgb_bits[i] = u32::from_le_bytes(b[..4].try_into().unwrap());
+            }
         }
     }
-    let get = |i: usize, j: usize| values[i * nf + j] as f32;
-    Ok(PointCloud {
-        points: (0..n)
-            .map(|i| [get(i, fx), get(i, fy), get(i, fz)])
-            .collect(),
-        normals: has_normals.then(|| {
-            let [a, b, c] = fnorm.map(|f| f.unwrap());
-            (0..n).map(|i| [get(i, a), get(i, b), get(i, c)]).collect()
-        }),
-        colors: frgb.map(|_| rgb_bits.iter().map(|&b| rgb_from_bits(b)).collect()),
-    })
+    table
 }
 
 #[cfg(test)]

@@ -49,17 +49,17 @@ pub struct RegisterConfig {
     pub fpfh_max_neighbors: usize,
     /// Feature matching.
     pub matching: MatchConfig,
-    /// RANSAC. The pipeline overwrites two of its fields: `inlier_distance` with `ransac_distance_voxels`
-    /// times the global voxel, `seed` with [`RegisterConfig::seed`]; values given for them here are ignored.
+    /// RANSAC. The pipeline sets its `inlier_distance` to `ransac_distance_voxels` times the global voxel:
+    /// [`RegisterConfig::validate`] refuses another value here (set `ransac_distance_voxels`).
     pub ransac: RansacConfig,
     /// RANSAC inlier distance in voxels (default 1.5).
     pub ransac_distance_voxels: f64,
     /// Verification of RANSAC's best hypotheses by a short ICP and a normal-space-balanced alignment score
     /// ([`crate::registration::verify`]); `None` keeps RANSAC's own choice (most feature inliers).
     pub verify: Option<VerifyConfig>,
-    /// ICP. The pipeline overwrites two of its fields at every level: `max_correspondence_distance` with
-    /// `icp_distance_voxels` times the level's voxel, `translation_tolerance` with 1e-3 times the level's
-    /// voxel; values given for them here are ignored. `sided` is on when either it or
+    /// ICP. The pipeline sets two of its fields at every level: `max_correspondence_distance` to
+    /// `icp_distance_voxels` times the level's voxel, `translation_tolerance` to 1e-3 times the level's
+    /// voxel; [`RegisterConfig::validate`] refuses other values here. `sided` is on when either it or
     /// [`RegisterConfig::sided`] is.
     pub icp: IcpConfig,
     /// Number of ICP resolutions: voxel, voxel/2, voxel/4, ... (default 2).
@@ -97,7 +97,8 @@ pub struct RegisterConfig {
     pub ambiguity_min_voxels: f64,
     /// The quality gate's thresholds ([`crate::registration::trust`]).
     pub trust: TrustConfig,
-    /// Random seed of every randomised step.
+    /// Random seed of every randomised step (the pipeline's one seed: RANSAC's draws and the verification's
+    /// subsampling take it from here).
     pub seed: u64,
 }
 
@@ -134,8 +135,9 @@ impl Default for RegisterConfig {
 
 impl RegisterConfig {
     /// Checks the ranges of every field (and of the nested configurations); the error names the field,
-    /// e.g. `icp.max_iterations`. The fields the pipeline overwrites (see [`RegisterConfig::ransac`] and
-    /// [`RegisterConfig::icp`]) are not checked. [`register`] calls it first.
+    /// e.g. `icp.max_iterations`. The fields the pipeline sets per level (see [`RegisterConfig::ransac`] and
+    /// [`RegisterConfig::icp`]) must keep their defaults: a value given for them would be overwritten, so it
+    /// is an error naming the setting to use instead. [`register`] calls it first.
     pub fn validate(&self) -> Result<()> {
         use crate::error::check;
         if let Some(v) = self.voxel.filter(|v| !(*v > 0.0 && v.is_finite())) {
@@ -151,6 +153,7 @@ impl RegisterConfig {
         check::at_least("fpfh_max_neighbors", self.fpfh_max_neighbors, 1)?;
         self.matching.validate()?;
         self.ransac.validate_shape()?;
+        self.pipeline_set_fields_untouched()?;
         check::positive("ransac_distance_voxels", self.ransac_distance_voxels)?;
         if let Some(v) = &self.verify {
             v.validate()?;
@@ -166,6 +169,42 @@ impl RegisterConfig {
         check::non_negative("ambiguity_min_deg", self.ambiguity_min_deg)?;
         check::non_negative("ambiguity_min_voxels", self.ambiguity_min_voxels)?;
         self.trust.validate()
+    }
+
+    /// The nested fields the pipeline sets from the voxel must not be given: a value there would be
+    /// overwritten silently.
+    fn pipeline_set_fields_untouched(&self) -> Result<()> {
+        let (ransac, icp) = (RansacConfig::default(), IcpConfig::default());
+        for (field, given, default, instead) in [
+            (
+                "ransac.inlier_distance",
+                self.ransac.inlier_distance,
+                ransac.inlier_distance,
+                "ransac_distance_voxels (in voxels)",
+            ),
+            (
+                "icp.max_correspondence_distance",
+                self.icp.max_correspondence_distance,
+                icp.max_correspondence_distance,
+                "icp_distance_voxels (in voxels)",
+            ),
+            (
+                "icp.translation_tolerance",
+                self.icp.translation_tolerance,
+                icp.translation_tolerance,
+                "nothing: it is 1e-3 times each level's voxel",
+            ),
+        ] {
+            if given.to_bits() != default.to_bits() {
+                return Err(Error::config(
+                    field,
+                    format!(
+                        "is set by the pipeline from each level's voxel, so {given} would be ignored; set                          {instead} instead"
+                    ),
+                ));
+            }
+        }
+        Ok(())
     }
 }
 
@@ -699,7 +738,6 @@ fn global(
     progress("RANSAC");
     let rcfg = RansacConfig {
         inlier_distance: cfg.ransac_distance_voxels * voxel,
-        seed: cfg.seed,
         ..cfg.ransac.clone()
     };
     let sides = cfg.sided.then(|| SideNormals {
@@ -714,6 +752,7 @@ fn global(
         &t0.index,
         &corr,
         &rcfg,
+        cfg.seed,
         sides,
     )?;
     timer.lap_counted("ransac", Some(corr.len()), Some(r.candidates.len()));

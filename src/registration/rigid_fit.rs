@@ -1,7 +1,8 @@
 //! Closed-form least-squares rigid fit (Arun 1987 / Umeyama 1991 without scale): the rotation and
 //! translation minimising Σ wᵢ ‖R pᵢ + t − qᵢ‖².
 
-use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use crate::geometry::transform::nearest_rotation;
+use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
 
 /// Best rigid transform mapping `src[i]` onto `dst[i]` with weights `w[i]` (all 1 when `None`).
 ///
@@ -33,21 +34,10 @@ pub fn rigid_fit(
     for i in 0..n {
         h += (src[i].coords - cs) * (dst[i].coords - cd).transpose() * weight(i);
     }
-    let svd = h.svd(true, true);
-    let (u, vt) = (svd.u?, svd.v_t?);
-    let sv = svd.singular_values;
-    let mut s = [sv[0], sv[1], sv[2]];
-    s.sort_by(|a, b| b.total_cmp(a));
-    if s[1] <= 1e-12 * s[0].max(1e-300) {
-        return None; // collinear or coincident
-    }
-    let mut d = Matrix3::identity();
-    if (vt.transpose() * u.transpose()).determinant() < 0.0 {
-        d[(2, 2)] = -1.0;
-    }
-    // The reflection fix must act on the smallest singular value; nalgebra's SVD sorts them descending.
-    let r = vt.transpose() * d * u.transpose();
-    let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
+    // R = V·D·Uᵀ for H = U·S·Vᵀ: the transpose of the rotation nearest to H (None when collinear or
+    // coincident: the rotation about the line is then undetermined).
+    let r = nearest_rotation(&h)?.transpose();
+    let rot = UnitQuaternion::from_rotation_matrix(&r);
     let t = cd - rot * cs;
     Some(Isometry3::from_parts(Translation3::from(t), rot))
 }

@@ -148,72 +148,32 @@ pub fn verify_candidates(
     cfg: &VerifyConfig,
 ) -> Vec<Verified> {
     let pick = normal_space_sample(source_normals, cfg.sample_points.max(30));
-    let pts: Vec<[f32; 3]> = pick.iter().map(|&i| source[i]).collect();
-    let nrm: Vec<[f32; 3]> = pick.iter().map(|&i| source_normals[i]).collect();
-    let tcloud = IcpCloud {
-        points: target,
-        normals: Some(target_normals),
-        covariances: None,
-    };
-    let icfg = IcpConfig {
-        factor: IcpFactor::PointToPlane,
-        kernel: RobustKernel::Huber,
-        max_correspondence_distance: cfg.icp_distance_voxels * voxel,
-        translation_tolerance: 1e-3 * voxel,
-        max_iterations: cfg.icp_iterations,
-        trim: Trim::default(),
-        sided,
-        ..IcpConfig::default()
-    };
-    let tau = cfg.tight_distance_voxels * voxel;
-    let reach2 = (cfg.icp_distance_voxels * voxel).powi(2) as f32;
-    let cos_max = cfg.max_normal_angle_deg.to_radians().cos();
-    let score = |t: &Isometry3<f64>, step: usize| -> f64 {
-        let rot = t.rotation;
-        let (sum, n) = pts
-            .iter()
-            .zip(&nrm)
-            .step_by(step)
-            .map(|(p, n)| {
-                let pw = transform_point(t, p);
-                let Some((j, d2)) = target_index.nearest(&pw) else {
-                    return 0.0;
-                };
-                if d2 > reach2 {
-                    return 0.0;
-                }
-                let nt = to_v64(&target_normals[j]);
-                let cos = (rot * to_v64(n)).dot(&nt);
-                if (if sided { cos } else { cos.abs() }) < cos_max {
-                    return 0.0;
-                }
-                let d = nt.dot(&(to_v64(&pw) - to_v64(&target[j]))).abs();
-                (1.0 - (d / tau).powi(2)).max(0.0)
-            })
-            .fold((0.0, 0usize), |a, s| (a.0 + s, a.1 + 1));
-        sum / n.max(1) as f64
-    };
-    let refine = |from: &Isometry3<f64>, step: usize, iterations: usize| -> (Isometry3<f64>, f64) {
-        let sub: Vec<[f32; 3]> = pts.iter().step_by(step).copied().collect();
-        let sub_normals: Vec<[f32; 3]> = nrm.iter().step_by(step).copied().collect();
-        let c = IcpConfig {
-            max_iterations: iterations.max(1),
-            ..icfg.clone()
-        };
-        let source_cloud = IcpCloud {
-            points: &sub,
-            normals: sided.then_some(sub_normals.as_slice()),
+    let v = Verifier {
+        pts: pick.iter().map(|&i| source[i]).collect(),
+        nrm: pick.iter().map(|&i| source_normals[i]).collect(),
+        target: IcpCloud {
+            points: target,
+            normals: Some(target_normals),
             covariances: None,
-        };
-        let refined = icp(&source_cloud, &tcloud, target_index, from, &c)
-            .map(|r| r.transform)
-            .unwrap_or(*from);
-        let s = if constraint.accepts(&refined) {
-            score(&refined, step) * prior.map_or(1.0, |f| f(&refined))
-        } else {
-            0.0
-        };
-        (refined, s)
+        },
+        target_normals,
+        target_index,
+        icp: IcpConfig {
+            factor: IcpFactor::PointToPlane,
+            kernel: RobustKernel::Huber,
+            max_correspondence_distance: cfg.icp_distance_voxels * voxel,
+            translation_tolerance: 1e-3 * voxel,
+            max_iterations: cfg.icp_iterations,
+            trim: Trim::default(),
+            sided,
+            ..IcpConfig::default()
+        },
+        tau: cfg.tight_distance_voxels * voxel,
+        reach2: (cfg.icp_distance_voxels * voxel).powi(2) as f32,
+        cos_max: cfg.max_normal_angle_deg.to_radians().cos(),
+        sided,
+        constraint,
+        prior,
     };
     let order = |v: &mut Vec<Verified>| {
         v.sort_by(|a, b| {
@@ -227,7 +187,7 @@ pub fn verify_candidates(
         .par_iter()
         .enumerate()
         .map(|(k, c)| {
-            let (transform, score) = refine(c, 3, cfg.icp_iterations.div_ceil(3));
+            let (transform, score) = v.refine(c, 3, cfg.icp_iterations.div_ceil(3));
             Verified {
                 transform,
                 score,
@@ -241,18 +201,102 @@ pub fn verify_candidates(
     let rest = first.split_off(n);
     let mut best: Vec<Verified> = first
         .par_iter()
-        .map(|v| {
-            let (transform, score) = refine(&v.transform, 1, cfg.icp_iterations);
+        .map(|c| {
+            let (transform, score) = v.refine(&c.transform, 1, cfg.icp_iterations);
             Verified {
                 transform,
                 score,
-                candidate: v.candidate,
+                candidate: c.candidate,
             }
         })
         .collect();
     order(&mut best);
     best.extend(rest);
     best
+}
+
+/// The verification's sample of the source and its settings: refines a candidate with a short ICP and
+/// scores it.
+struct Verifier<'a> {
+    /// The normal-space sample of the source, and its normals.
+    pts: Vec<[f32; 3]>,
+    nrm: Vec<[f32; 3]>,
+    target: IcpCloud<'a>,
+    target_normals: &'a [[f32; 3]],
+    target_index: &'a KdIndex,
+    /// The short ICP's settings (its iteration budget is set per stage).
+    icp: IcpConfig,
+    /// Tight distance of the score, cloud units.
+    tau: f64,
+    /// Squared reach of a pair, cloud units².
+    reach2: f32,
+    /// Smallest cosine between a pair's normals.
+    cos_max: f64,
+    sided: bool,
+    constraint: &'a PoseConstraint,
+    prior: Option<HypothesisPrior<'a>>,
+}
+
+impl Verifier<'_> {
+    /// The alignment score of `t` on every `step`-th sample point, in [0, 1]: each point within reach whose
+    /// normal agrees scores `1 − (d/τ)²` by its point-to-plane distance `d` (0 beyond τ).
+    fn score(&self, t: &Isometry3<f64>, step: usize) -> f64 {
+        let rot = t.rotation;
+        let (target, target_normals) = (self.target.points, self.target_normals);
+        let (sum, n) = self
+            .pts
+            .iter()
+            .zip(&self.nrm)
+            .step_by(step)
+            .map(|(p, n)| {
+                let pw = transform_point(t, p);
+                let Some((j, d2)) = self.target_index.nearest(&pw) else {
+                    return 0.0;
+                };
+                if d2 > self.reach2 {
+                    return 0.0;
+                }
+                let nt = to_v64(&target_normals[j]);
+                let cos = (rot * to_v64(n)).dot(&nt);
+                if (if self.sided { cos } else { cos.abs() }) < self.cos_max {
+                    return 0.0;
+                }
+                let d = nt.dot(&(to_v64(&pw) - to_v64(&target[j]))).abs();
+                (1.0 - (d / self.tau).powi(2)).max(0.0)
+            })
+            .fold((0.0, 0usize), |a, s| (a.0 + s, a.1 + 1));
+        sum / n.max(1) as f64
+    }
+
+    /// `from` refined by at most `iterations` ICP steps on every `step`-th sample point, with its score
+    /// (0 when the refinement leaves the constraint; times the prior when given).
+    fn refine(
+        &self,
+        from: &Isometry3<f64>,
+        step: usize,
+        iterations: usize,
+    ) -> (Isometry3<f64>, f64) {
+        let sub: Vec<[f32; 3]> = self.pts.iter().step_by(step).copied().collect();
+        let sub_normals: Vec<[f32; 3]> = self.nrm.iter().step_by(step).copied().collect();
+        let c = IcpConfig {
+            max_iterations: iterations.max(1),
+            ..self.icp.clone()
+        };
+        let source_cloud = IcpCloud {
+            points: &sub,
+            normals: self.sided.then_some(sub_normals.as_slice()),
+            covariances: None,
+        };
+        let refined = icp(&source_cloud, &self.target, self.target_index, from, &c)
+            .map(|r| r.transform)
+            .unwrap_or(*from);
+        let s = if self.constraint.accepts(&refined) {
+            self.score(&refined, step) * self.prior.map_or(1.0, |f| f(&refined))
+        } else {
+            0.0
+        };
+        (refined, s)
+    }
 }
 
 #[cfg(test)]

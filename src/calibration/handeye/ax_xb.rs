@@ -76,25 +76,10 @@ fn pos_w(q: &UnitQuaternion<f64>) -> Quaternion<f64> {
     }
 }
 
-/// The proper rotation nearest to `m` (polar decomposition by SVD), `None` when `m` is rank-deficient
-/// below rank 2.
+/// The proper rotation nearest to `m` ([`crate::geometry::transform::nearest_rotation`]) as a quaternion.
 pub(crate) fn nearest_rotation(m: &Matrix3<f64>) -> Option<UnitQuaternion<f64>> {
-    let svd = m.svd(true, true);
-    let (u, vt) = (svd.u?, svd.v_t?);
-    let s = svd.singular_values;
-    let mut sorted = [s[0], s[1], s[2]];
-    sorted.sort_by(|a, b| b.total_cmp(a));
-    if sorted[0] <= 0.0 || sorted[1] <= 1e-12 * sorted[0] {
-        return None;
-    }
-    let mut d = Matrix3::identity();
-    if (u * vt).determinant() < 0.0 {
-        // Flip the direction of the smallest singular value.
-        let k = s.imin();
-        d[(k, k)] = -1.0;
-    }
-    let r = u * d * vt;
-    Some(UnitQuaternion::from_matrix(&r))
+    crate::geometry::transform::nearest_rotation(m)
+        .map(|r| UnitQuaternion::from_rotation_matrix(&r))
 }
 
 /// Park-Martin: the rotation that best maps the camera rotation vectors `βᵢ = log R_Bᵢ` onto the robot
