@@ -205,7 +205,8 @@ impl ConsistencyConfig {
         Ok(())
     }
 
-    fn sigma(&self, z: f64) -> f64 {
+    /// Depth noise σ(z), metres.
+    pub(crate) fn sigma(&self, z: f64) -> f64 {
         self.noise_a_m + self.noise_b_per_m * z * z
     }
 
@@ -251,10 +252,13 @@ pub struct RobotConsistency {
 
 /// A sampled block of a frame: centre pixel and mid depth (metres at the nominal depth scale).
 #[derive(Clone, Copy, Debug)]
-struct Sample {
-    u: f32,
-    v: f32,
-    z: f32,
+pub(crate) struct Sample {
+    /// Centre pixel column.
+    pub(crate) u: f32,
+    /// Centre pixel row.
+    pub(crate) v: f32,
+    /// Mid depth, metres.
+    pub(crate) z: f32,
 }
 
 /// A model of the robot's camera to evaluate residuals under: factors on depth scale and focal lengths,
@@ -333,7 +337,11 @@ fn roughness(view: &DepthView, cfg: &ConsistencyConfig) -> f64 {
 }
 
 /// A deterministic pseudo-random sample of a view's smooth blocks.
-fn sample_view(view: &DepthView, intr: &Intrinsics, cfg: &ConsistencyConfig) -> Vec<Sample> {
+pub(crate) fn sample_view(
+    view: &DepthView,
+    intr: &Intrinsics,
+    cfg: &ConsistencyConfig,
+) -> Vec<Sample> {
     if view.near.len() != (view.size[0] * view.size[1]) as usize
         || view.far.len() != view.near.len()
     {
@@ -368,7 +376,12 @@ fn sample_view(view: &DepthView, intr: &Intrinsics, cfg: &ConsistencyConfig) -> 
 /// The depth a view saw at pixel `(u, v)` (metres at the nominal scale): bilinear between the mid depths of
 /// the four nearest smooth blocks when they agree, else the containing block's `[near, far]`. `None` where
 /// the view has no depth.
-fn view_depth(view: &DepthView, u: f64, v: f64, cfg: &ConsistencyConfig) -> Option<(f64, f64)> {
+pub(crate) fn view_depth(
+    view: &DepthView,
+    u: f64,
+    v: f64,
+    cfg: &ConsistencyConfig,
+) -> Option<(f64, f64)> {
     let b = view.block as f64;
     let (sw, sh) = (view.size[0] as i64, view.size[1] as i64);
     let bu = ((u + 0.5) / b).floor() as i64;

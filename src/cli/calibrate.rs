@@ -4,14 +4,17 @@ use super::methods::{CalibrateSettings, Method, MethodInputs};
 use super::output::{matrix4_text, spinner};
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
+use depthcal::calibration::handeye::depth::HandEyeDepthConfig;
 use depthcal::calibration::robot_to_robot::{robot_pair, Calibration, FusedCell};
 use depthcal::cell::Cell;
 use depthcal::geometry::pose::{isometry_to_xyzquat, KukaPose};
 use depthcal::geometry::robot_formats::{
     ros1_static_tf_command, ros2_static_tf_command, transform_files, Frames,
 };
-use depthcal::methods::calibrate_with_method;
+use depthcal::methods::{calibrate_refining_hand_eyes, calibrate_with_method};
+use depthcal::report::handeye_depth::true_hand_eye;
 use depthcal::report::CalibrationReport;
+use depthcal::report::HandEyeDepthReport;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -57,6 +60,10 @@ pub struct Args {
     /// ROBOT_base).
     #[arg(long, value_name = "ID")]
     child_frame_id: Option<String>,
+    /// First refine each robot's hand-eye from its own depth frames (they must agree on one static
+    /// scene), then calibrate with the refined hand-eyes (docs/handeye.md#hand-eye-from-depth).
+    #[arg(long)]
+    refine_hand_eye: bool,
     #[command(flatten)]
     settings: CalibrateSettings,
 }
@@ -193,9 +200,24 @@ pub fn run(a: Args) -> Result<()> {
     };
     let pb = spinner("opening the cell");
     let mut progress = |s: &str| pb.set_message(s.to_string());
-    let (c, fused) =
-        calibrate_with_method(&cell, method, &inputs, &cfg, !a.no_refine, &mut progress)
-            .with_context(|| format!("calibrating {}", a.cell.display()))?;
+    let (c, fused, hand_eyes) = if a.refine_hand_eye {
+        let (c, f, h) = calibrate_refining_hand_eyes(
+            &cell,
+            method,
+            &inputs,
+            &cfg,
+            &HandEyeDepthConfig::default(),
+            !a.no_refine,
+            &mut progress,
+        )
+        .with_context(|| format!("calibrating {}", a.cell.display()))?;
+        (c, f, Some(h))
+    } else {
+        let (c, f) =
+            calibrate_with_method(&cell, method, &inputs, &cfg, !a.no_refine, &mut progress)
+                .with_context(|| format!("calibrating {}", a.cell.display()))?;
+        (c, f, None)
+    };
     pb.finish_and_clear();
     for w in &c.warnings {
         eprintln!("warning: {w}");
@@ -209,7 +231,18 @@ pub fn run(a: Args) -> Result<()> {
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
     let ros2 = ros2_static_tf_command(t, &frames);
     let ros1 = ros1_static_tf_command(t, &frames);
-    let report = CalibrationReport::new(&c, &a.cell.display().to_string(), &frames, total_ms);
+    let mut report = CalibrationReport::new(&c, &a.cell.display().to_string(), &frames, total_ms);
+    if let Some(h) = &hand_eyes {
+        let gt = cell.ground_truth()?;
+        report.hand_eye_refinement = Some(
+            h.iter()
+                .map(|r| {
+                    let truth = gt.as_ref().and_then(|g| true_hand_eye(g, &r.robot));
+                    HandEyeDepthReport::new(r, &a.cell.display().to_string(), truth.as_ref())
+                })
+                .collect(),
+        );
+    }
     if let Some(dir) = &a.output {
         if c.trust.trusted {
             write_outputs(dir, &c, &fused, &frames, &report)?;
@@ -276,6 +309,27 @@ pub fn run(a: Args) -> Result<()> {
             c.priors_used.join(", ")
         }
     );
+    for h in report.hand_eye_refinement.iter().flatten() {
+        println!(
+            "hand-eye {:<7} refined from depth: moved {:.3} deg / {:.2} mm, residual median {:.2} -> {:.2} mm{}{}",
+            h.robot,
+            h.change_size.rotation_deg,
+            h.change_size.translation_m * 1e3,
+            h.median_residual_before_m * 1e3,
+            h.median_residual_after_m * 1e3,
+            h.error_vs_truth
+                .as_ref()
+                .map(|e| format!(
+                    "; vs truth {:.3} deg / {:.2} mm -> {:.3} deg / {:.2} mm",
+                    e.before.rotation_deg,
+                    e.before.translation_m * 1e3,
+                    e.after.rotation_deg,
+                    e.after.translation_m * 1e3
+                ))
+                .unwrap_or_default(),
+            if h.trusted { "" } else { " (NOT trusted)" }
+        );
+    }
     println!("initial         {}", c.initial.detail);
     if c.refined {
         // The initialiser's estimate and the refined one side by side.

@@ -17,11 +17,28 @@ use std::path::PathBuf;
 #[derive(ClapArgs)]
 pub struct Args {
     /// Robot flange poses T_base_ee, CSV with a header, one row per frame id.
-    #[arg(long)]
-    pub robot_poses: PathBuf,
+    #[arg(long, required_unless_present = "depth")]
+    pub robot_poses: Option<PathBuf>,
     /// Board poses in the camera T_cam_board (from any tool), CSV with a header, rows matched by frame id.
-    #[arg(long, required_unless_present = "images", conflicts_with = "images")]
+    #[arg(
+        long,
+        required_unless_present_any = ["images", "depth"],
+        conflicts_with = "images"
+    )]
     pub target_poses: Option<PathBuf>,
+    /// Instead of a board: refine the hand-eye of --robot in this cell directory from its depth frames
+    /// (all frames must describe one static scene; docs/handeye.md#hand-eye-from-depth). --config then
+    /// takes a HandEyeDepthConfig.
+    #[arg(
+        long,
+        value_name = "CELL_DIR",
+        requires = "robot",
+        conflicts_with_all = ["robot_poses", "target_poses", "images", "eye_to_hand", "no_refine"]
+    )]
+    pub depth: Option<PathBuf>,
+    /// With --depth: the robot (its name in cell.toml) whose hand-eye to refine.
+    #[arg(long, value_name = "NAME", requires = "depth")]
+    pub robot: Option<String>,
     /// Instead of --target-poses: a directory of board images named by frame id (<frame>.png, .jpg, ...);
     /// the board is found in each and its pose solved (needs --board or --charuco, --square, --intrinsics
     /// and the `vision` feature; a ChArUco board may be partly in view).
@@ -65,6 +82,17 @@ pub struct Args {
 
 /// Runs `depthcal handeye`.
 pub fn run(a: Args) -> anyhow::Result<()> {
+    if let Some(dir) = &a.depth {
+        return super::handeye_depth::run(
+            dir,
+            a.robot.as_deref().unwrap_or(""),
+            a.config.as_deref(),
+            a.json,
+        );
+    }
+    let Some(robot_poses) = a.robot_poses.clone() else {
+        anyhow::bail!("give --robot-poses FILE (or --depth CELL_DIR --robot NAME)");
+    };
     let mut config: HandEyeConfig =
         super::output::read_config(a.config.as_deref(), "hand-eye configuration")?;
     config.method = a.method;
@@ -73,7 +101,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if let Some(out) = &a.save_target_poses {
         super::guard::check_output_file("--save-target-poses", out, &[])?;
         let mut inputs = super::guard::Inputs::default();
-        inputs.add("--robot-poses", &a.robot_poses);
+        inputs.add("--robot-poses", &robot_poses);
         inputs.add_opt("--intrinsics", a.intrinsics.as_ref());
         inputs.add_opt("--config", a.config.as_ref());
         if let Some(dir) = &a.images {
@@ -85,7 +113,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
         inputs.check_output("--save-target-poses", out)?;
     }
-    let robot = read_with_hint(&a.robot_poses, a.robot_format, "--robot-format")?;
+    let robot = read_with_hint(&robot_poses, a.robot_format, "--robot-format")?;
     let (robot, target, target_path) = match (&a.target_poses, &a.images) {
         (Some(p), _) => (
             robot,
@@ -103,7 +131,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
         (None, None) => anyhow::bail!("give --target-poses FILE or --images DIR"),
     };
-    let mut frames = frames_from_records(&robot, &a.robot_poses, &target, &target_path)?;
+    let mut frames = frames_from_records(&robot, &robot_poses, &target, &target_path)?;
     if a.eye_to_hand {
         for f in &mut frames {
             f.t_cam_board = f.t_cam_board.inverse();
@@ -123,7 +151,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             &r,
             &HandEyeInputs {
                 eye_to_hand: a.eye_to_hand,
-                robot_poses: a.robot_poses.display().to_string(),
+                robot_poses: robot_poses.display().to_string(),
                 target_poses: a.target_poses.as_ref().map(|p| p.display().to_string()),
                 images: a.images.as_ref().map(|p| p.display().to_string()),
             },
@@ -157,7 +185,10 @@ fn board_poses_from_images(
         eprintln!(
             "warning: {} matches no frame of {} and is ignored",
             p.display(),
-            a.robot_poses.display()
+            a.robot_poses
+                .as_deref()
+                .unwrap_or(std::path::Path::new(""))
+                .display()
         );
     }
     let obs = observe_board(&images, &board, &intr, &ObserveConfig::default())?;

@@ -9,6 +9,7 @@ mod convert;
 mod fuse;
 mod guard;
 mod handeye;
+mod handeye_depth;
 mod import;
 mod intrinsics;
 mod markers;

@@ -7,7 +7,10 @@
 
 pub mod run;
 
-pub use run::{calibrate_with_method, compare_methods, Comparison, MethodOutcome, MethodRow};
+pub use run::{
+    calibrate_refining_hand_eyes, calibrate_with_method, compare_methods, Comparison,
+    MethodOutcome, MethodRow,
+};
 
 use crate::calibration::initializer::{GlobalRegistration, Initializer, UserGuess};
 use crate::calibration::robot_to_robot::CalibrateConfig;

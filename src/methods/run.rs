@@ -2,6 +2,9 @@
 //! calibrate` and `depthcal compare` (and the Python package) run.
 
 use super::{available, build, Method, MethodInputs};
+use crate::calibration::handeye::depth::{
+    refine_hand_eye_from_depth, HandEyeDepthConfig, HandEyeDepthResult,
+};
 use crate::calibration::robot_to_robot::{
     calibrate_keeping_clouds, fuse_cell, initialize_only_keeping_clouds, refine_cell,
     CalibrateConfig, Calibration, FusedCell,
@@ -182,4 +185,53 @@ pub fn compare_methods(
         has_truth: cell.ground_truth()?.and_then(|g| g.t_base1_base2).is_some(),
     };
     Ok((cmp, fused))
+}
+
+/// [`calibrate_with_method`] after each robot's hand-eye is refined from its own depth frames
+/// (`calibrate --refine-hand-eye`, [`crate::calibration::handeye::depth`]): a copy of the cell takes the
+/// refined hand-eyes (and, for a trusted refinement, their 1-σ as the hand-eye uncertainty), then the usual
+/// calibration runs on it. A refinement that does not lower its robot's residuals keeps the cell's
+/// hand-eye; an untrusted one makes the calibration untrusted, with its reasons. Returns the calibration,
+/// its fused clouds and each robot's refinement (cell order).
+pub fn calibrate_refining_hand_eyes(
+    cell: &Cell,
+    method: Method,
+    inputs: &MethodInputs,
+    cfg: &CalibrateConfig,
+    hand_eye: &HandEyeDepthConfig,
+    refine: bool,
+    progress: &mut dyn FnMut(&str),
+) -> Result<(Calibration, FusedCell, Vec<HandEyeDepthResult>)> {
+    let mut refined_cell = cell.clone();
+    let mut results = Vec::with_capacity(cell.robots.len());
+    for robot in &mut refined_cell.robots {
+        progress(&format!(
+            "refining the hand-eye of {} from its depth",
+            robot.name
+        ));
+        let r = refine_hand_eye_from_depth(robot, None, hand_eye)?;
+        if r.median_after_m <= r.median_before_m {
+            robot.t_ee_cam = r.t_ee_cam;
+            if r.trusted {
+                let sd = |k: usize| r.covariance[(k, k)].max(0.0).sqrt();
+                robot.uncertainty.hand_eye_rotation_rad = sd(0).max(sd(1)).max(sd(2));
+                robot.uncertainty.hand_eye_translation_m = sd(3).max(sd(4)).max(sd(5));
+            }
+        }
+        results.push(r);
+    }
+    let (mut c, fused) =
+        calibrate_with_method(&refined_cell, method, inputs, cfg, refine, progress)?;
+    for r in &results {
+        if !r.trusted {
+            c.trust.trusted = false;
+            c.trust.reasons.extend(r.reasons.iter().cloned());
+            for s in &r.suggestions {
+                if !c.trust.suggestions.contains(s) {
+                    c.trust.suggestions.push(s.clone());
+                }
+            }
+        }
+    }
+    Ok((c, fused, results))
 }

@@ -123,6 +123,9 @@ pub struct CalibrationReport {
     pub timings_ms: Timings,
     /// Wall time of the whole run, milliseconds.
     pub total_ms: f64,
+    /// With `--refine-hand-eye`: each robot's hand-eye refined from its depth frames (absent otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hand_eye_refinement: Option<Vec<super::HandEyeDepthReport>>,
 }
 
 impl CalibrationReport {
@@ -181,6 +184,7 @@ impl CalibrationReport {
             warnings: c.warnings.clone(),
             timings_ms: Timings(c.timings_ms.clone()),
             total_ms,
+            hand_eye_refinement: None,
         }
     }
 }

@@ -13,6 +13,7 @@ pub mod calibration;
 pub mod comparison;
 pub mod fusion;
 pub mod handeye;
+pub mod handeye_depth;
 pub mod pose;
 pub mod registration;
 
@@ -20,5 +21,6 @@ pub use calibration::{CalibrationReport, CALIBRATION_SCHEMA};
 pub use comparison::{ComparisonReport, COMPARISON_SCHEMA};
 pub use fusion::{FusionReport, FUSION_SCHEMA};
 pub use handeye::{HandEyeInputs, HandEyeReport, HANDEYE_SCHEMA};
+pub use handeye_depth::{HandEyeDepthReport, HANDEYE_DEPTH_SCHEMA};
 pub use pose::{ErrorReport, PoseReport, SigmaReport, Timings};
 pub use registration::{RegistrationInputs, RegistrationReport, REGISTRATION_SCHEMA};

@@ -37,6 +37,7 @@
 
 pub mod ax_xb;
 pub mod ax_zb;
+pub mod depth;
 pub mod refine;
 pub mod reprojection;
 
