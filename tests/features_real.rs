@@ -202,8 +202,11 @@ fn orb_and_akaze_on_graffiti() {
     }
 }
 
-/// The homography rows of `depthcal match --json` output (asserting the JSON shape).
+/// The homography rows of `depthcal match --json` output (asserting the JSON shape and that docs/json.md
+/// lists its fields).
 fn json_homography(v: &serde_json::Value) -> Option<Matrix3<f64>> {
+    assert_eq!(v["schema"], "depthcal.match/1");
+    common::assert_documented(v);
     assert!(v["matches"].is_u64() && v["inliers"].is_u64(), "{v}");
     let h = &v["homography"];
     if h.is_null() {
@@ -256,6 +259,15 @@ fn match_command_json_and_annotation() {
         pairs.iter().filter(|p| p["inlier"] == true).count() as u64,
         inliers
     );
+    // Each inlier pair is mapped by the homography to within the threshold.
+    let threshold = v["threshold_px"].as_f64().unwrap();
+    for p in pairs.iter().filter(|p| p["inlier"] == true) {
+        let xy = |k: &str| [p[k][0].as_f64().unwrap(), p[k][1].as_f64().unwrap()];
+        let ([x1, y1], [x2, y2]) = (xy("p1_px"), xy("p2_px"));
+        let q = h * nalgebra::Vector3::new(x1, y1, 1.0);
+        let e = ((q.x / q.z - x2).powi(2) + (q.y / q.z - y2).powi(2)).sqrt();
+        assert!(e <= threshold * 1.0001, "{p}: transfer error {e} px");
+    }
     assert_eq!(v["detector"], "sift");
     let grid = wall_grid_errors(&h, &reference);
     let (med, max) = (

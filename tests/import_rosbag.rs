@@ -220,6 +220,10 @@ fn ros_driver_bag_imports_exact_depth_intrinsics_colour_and_poses() {
     ]);
     assert_eq!(code, 0, "{err}");
     let report: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(report["schema"], "depthcal.import/1");
+    common::assert_documented(&report);
+    assert!(report["seconds"].as_f64().unwrap() >= 0.0);
+    assert_eq!(report["intrinsics"]["fx"], cam.fx);
     assert_eq!(report["depth_stream"], "/camera/depth/image_rect_raw");
     assert_eq!(report["color_stream"], "/camera/color/image_raw");
     assert_eq!(report["depth_frames_in_recording"], 6);
@@ -260,6 +264,14 @@ fn ros_driver_bag_imports_exact_depth_intrinsics_colour_and_poses() {
         out.contains("/camera/depth/image_rect_raw: 6 frames"),
         "{out}"
     );
+    let (code, out, err) = depthcal(&["import", s(&bag), "--list", "--color", "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let list: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(list["schema"], "depthcal.recording/1");
+    common::assert_documented(&list);
+    assert_eq!(list["depth_frames"], 6);
+    assert_eq!(list["color_stream"], "/camera/color/image_raw");
+    assert_eq!(list["depth_stamps_s"], report["stamps_s"]);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -796,5 +808,50 @@ fn corrupted_bags_give_errors_not_panics() {
         "only {errors} of {} corruptions were detected",
         cases.len()
     );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `capture` needs a camera, so its report is built here the way the command builds it: one append per
+/// frame taken (`--poses`), the first creating the cell and the robot.
+#[test]
+fn the_capture_report_covers_every_append_and_is_documented() {
+    use depthcal::camera::{DepthImage, Intrinsics};
+    use depthcal::capture::{append_frames, NewFrame, RobotSetup};
+    use depthcal::report::CaptureReport;
+    let dir = common::scratch("capture-report");
+    let cell = dir.join("cell");
+    let intr = Intrinsics::pinhole(8, 6, 5.0, 5.0, 3.5, 2.5);
+    let frame = |id: &str| NewFrame {
+        id: id.into(),
+        t_base_ee: nalgebra::Isometry3::identity(),
+        depth: DepthImage {
+            width: 8,
+            height: 6,
+            data: vec![700; 48],
+        },
+        color: None,
+        source: format!("test frame {id}"),
+        pose_origin: "test".into(),
+    };
+    let setup = RobotSetup {
+        name: "left".into(),
+        hand_eye: Some(nalgebra::Isometry3::identity()),
+        pose_format: PoseFormat::Kuka,
+    };
+    let appends = vec![
+        append_frames(&cell, &setup, &intr, &[frame("a")]).unwrap(),
+        append_frames(&cell, &setup, &intr, &[frame("b"), frame("c")]).unwrap(),
+    ];
+    let r = CaptureReport::new("D435", "0123", &intr, &appends).unwrap();
+    let v = serde_json::to_value(&r).unwrap();
+    assert_eq!(v["schema"], "depthcal.capture/1");
+    common::assert_documented(&v);
+    assert_eq!(v["frames"], serde_json::json!(["a", "b", "c"]));
+    assert_eq!(v["frames_total"], 3);
+    assert_eq!(v["created_cell"], true);
+    assert_eq!(v["created_robot"], true);
+    assert_eq!(v["intrinsics"]["fx"], 5.0);
+    assert_eq!(v["cell_dir"], cell.display().to_string());
+    assert!(CaptureReport::new("D435", "0123", &intr, &[]).is_err());
     let _ = std::fs::remove_dir_all(&dir);
 }

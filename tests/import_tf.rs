@@ -230,6 +230,25 @@ fn poses_from_tf_match_an_independent_interpolation() {
     assert_eq!(code, 0, "{err}");
     assert!(out.contains("tf base -> link1: 61 /tf samples"), "{out}");
     assert!(out.contains("tf link1 -> flange: static"), "{out}");
+    // The same as JSON: depthcal.recording/1, documented field by field.
+    let (code, out, err) = depthcal(&["import", s(&bag), "--list", "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let list: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(list["schema"], "depthcal.recording/1");
+    common::assert_documented(&list);
+    let edges = list["tf"].as_array().unwrap();
+    let link1 = edges
+        .iter()
+        .find(|e| e["parent"] == "base" && e["child"] == "link1")
+        .unwrap_or_else(|| panic!("no base -> link1 edge: {list}"));
+    assert_eq!(link1["samples"], 61);
+    assert_eq!(link1["is_static"], false);
+    assert_eq!(link1["span_s"].as_array().map(Vec::len), Some(2));
+    assert_eq!(
+        list["depth_frames"].as_u64(),
+        Some(list["depth_stamps_s"].as_array().unwrap().len() as u64)
+    );
+    assert!(list["color_stream"].is_null() && list["color_frames"].is_null());
     let cell = d.join("cell");
     let (code, out, err) = depthcal(&[
         "import",
@@ -247,6 +266,8 @@ fn poses_from_tf_match_an_independent_interpolation() {
     ]);
     assert_eq!(code, 0, "{err}");
     let report: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(report["schema"], "depthcal.import/1");
+    common::assert_documented(&report);
     assert_eq!(
         report["append"]["frames"].as_array().unwrap().len(),
         FRAMES as usize

@@ -202,8 +202,11 @@ fn cli_json_and_annotation() {
     ]);
     assert_eq!(code, 0, "{stderr}");
     let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(v["schema"], "depthcal.markers/1");
+    common::assert_documented(&v);
     assert_eq!(v["dictionary"], "tag36h11");
     assert_eq!(v["detector"], "apriltag");
+    assert_eq!(v["corner_order"], "apriltag");
     let images = v["images"].as_array().unwrap();
     assert_eq!(images.len(), 1);
     assert_eq!(images[0]["path"], img.to_str().unwrap());
@@ -216,7 +219,7 @@ fn cli_json_and_annotation() {
     );
     for m in markers {
         assert!(m["id"].is_u64(), "{m}");
-        let c = m["corners"].as_array().unwrap();
+        let c = m["corners_px"].as_array().unwrap();
         assert_eq!(c.len(), 4);
         for p in c {
             let p = p.as_array().unwrap();
@@ -227,7 +230,7 @@ fn cli_json_and_annotation() {
     // JSON corners are the library's, in the detector's order.
     let lib = detect_markers(&read_grey_image(&img).unwrap(), &MarkerConfig::default()).unwrap();
     assert_eq!(lib.len(), markers.len());
-    let c0 = &markers[0]["corners"][0];
+    let c0 = &markers[0]["corners_px"][0];
     assert!((c0[0].as_f64().unwrap() - lib[0].corners[0].x).abs() < 1e-3);
     assert!((c0[1].as_f64().unwrap() - lib[0].corners[0].y).abs() < 1e-3);
     let png = ann.join(format!("{}_markers.png", STEMS[0]));

@@ -502,9 +502,30 @@ fn cli_writes_a_cell_and_refuses_a_non_empty_directory() {
         String::from_utf8_lossy(&out.stderr)
     );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["schema"], "depthcal.simulation/1");
+    common::assert_documented(&v);
     assert_eq!(v["frames_per_robot"], 2);
     assert_eq!(v["objects"], 5);
     assert!(Cell::open(&dir).is_ok());
+    // The truth is a pose object, the one of ground_truth.json.
+    let truth = GroundTruth::read(&dir)
+        .unwrap()
+        .unwrap()
+        .t_base1_base2
+        .unwrap();
+    let m = &v["T_base1_base2"]["matrix"];
+    for (r, c) in (0..3).flat_map(|r| (0..4).map(move |c| (r, c))) {
+        let want = truth.to_homogeneous()[(r, c)];
+        assert!((m[r][c].as_f64().unwrap() - want).abs() < 1e-12, "{m}");
+    }
+    let xyz: Vec<f64> = v["T_base1_base2"]["xyz_m"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    let dist = v["base_distance_m"].as_f64().unwrap();
+    assert!((xyz.iter().map(|x| x * x).sum::<f64>().sqrt() - dist).abs() < 1e-12);
     let again = std::process::Command::new(exe)
         .args(["simulate"])
         .arg(&dir)

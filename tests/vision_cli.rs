@@ -122,12 +122,21 @@ fn simulate_intrinsics_handeye_and_calibrate_by_checkerboard() {
     let (ok, out, err) = run(&args);
     assert!(ok, "{err}");
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["schema"], "depthcal.intrinsics/1");
+    common::assert_documented(&v);
     let fx = v["fx"].as_f64().unwrap();
     assert!((fx - 382.6).abs() < 382.6 * 0.01, "fx {fx}");
     assert!(v["rms"].as_f64().unwrap() < 0.3, "{}", v["rms"]);
     assert_eq!(v["model"], "brown_conrady");
+    assert_eq!(v["board"]["type"], "checkerboard");
+    assert_eq!(v["views"].as_array().unwrap().len(), 12);
+    assert_eq!(v["views"][0]["corners"], 54);
+    assert_eq!(v["sigma"]["coeffs"].as_array().unwrap().len(), 5);
+    assert_eq!(v["sigma"]["coeffs"][4], 0.0, "k3 is fixed: its 1-σ is 0");
+    assert_eq!(v["config"]["estimate_k3"], false);
     let intr = depthcal::camera::Intrinsics::from_json_file(&out_json).unwrap();
     assert_eq!((intr.width, intr.height), (640, 480));
+    assert_eq!(v["fx"], intr.fx, "--json holds the --output intrinsics");
 
     // Hand-eye from the images, with the cell's own intrinsics, for both robots.
     let cell = Cell::open(&cell_dir).unwrap();

@@ -3,7 +3,6 @@
 use crate::convert;
 use crate::errors::{input_err, lib_err};
 use crate::pool;
-use depthcal::geometry::transform::isometry_to_nested;
 use depthcal::sim::{NoiseLevel, Resolution, SimCell, SimConfig};
 use pyo3::prelude::*;
 use std::time::Instant;
@@ -29,9 +28,11 @@ use std::time::Instant;
 ///     threads: worker threads for this call (default: all cores).
 ///
 /// Returns:
-///     A dict: ``out_dir``, ``seed``, ``robots``, ``frames_per_robot``, ``resolution``, ``objects``,
-///     ``T_base1_base2`` (the truth, 4x4 nested lists, metres), ``base_distance_m``, ``shared_fraction``,
-///     ``view_spread``, ``files``, ``bytes``, ``seconds`` (the JSON of ``depthcal simulate --json``).
+///     A dict (schema ``depthcal.simulation/1``, the JSON of ``depthcal simulate --json``): ``schema``,
+///     ``out_dir``, ``seed``, ``robots``, ``frames_per_robot``, ``resolution``, ``objects``,
+///     ``T_base1_base2`` (the truth, a pose dict: ``matrix``, ``xyz_m``, ``quaternion_xyzw``,
+///     ``kuka_xyzabc``), ``base_distance_m``, ``shared_fraction``, ``view_spread``, ``files``, ``bytes``,
+///     ``seconds``.
 #[pyfunction]
 #[pyo3(signature = (out_dir, *, seed=None, frames=None, noise=None, overlap=None, resolution=None, objects=None, tilted_bases=false, color=true, textured=false, config=None, force=false, threads=None))]
 #[allow(clippy::too_many_arguments)]
@@ -119,21 +120,13 @@ pub fn simulate<'py>(
         Ok((cell, stats))
     })?;
     let (cell, stats) = outcome.map_err(lib_err)?;
-    let t = cell.t_base1_base2();
-    let v = serde_json::json!({
-        "out_dir": dir,
-        "seed": cfg.seed,
-        "robots": cell.robots.iter().map(|r| &r.name).collect::<Vec<_>>(),
-        "frames_per_robot": cfg.frames,
-        "resolution": cfg.resolution.to_string(),
-        "objects": cell.scene.objects.len(),
-        "T_base1_base2": isometry_to_nested(&t),
-        "base_distance_m": t.translation.vector.norm(),
-        "shared_fraction": cell.shared,
-        "view_spread": cell.view_spread,
-        "files": stats.files,
-        "bytes": stats.bytes,
-        "seconds": start.elapsed().as_secs_f64(),
-    });
+    let report = depthcal::report::SimulationReport::new(
+        &cell,
+        &cfg,
+        &stats,
+        &dir,
+        start.elapsed().as_secs_f64(),
+    );
+    let v = crate::register::to_json(&report)?;
     convert::json_to_py(py, &v)
 }

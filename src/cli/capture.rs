@@ -214,18 +214,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let ids: Vec<&String> = reports.iter().flat_map(|r| &r.frames).collect();
     let last = reports.last().expect("at least one frame");
     if a.json {
-        let out = serde_json::json!({
-            "camera": cam.name,
-            "serial": cam.serial,
-            "intrinsics": intr,
-            "cell_dir": a.cell_dir,
-            "robot": a.robot,
-            "frames": ids,
-            "frames_total": last.frames_total,
-            "created_cell": reports[0].created_cell,
-            "created_robot": reports[0].created_robot,
-            "color": last.color,
-        });
+        let out = depthcal::report::CaptureReport::new(&cam.name, &cam.serial, &intr, &reports)?;
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
         println!(

@@ -246,16 +246,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         let d = rec.depth();
         let i = rec.intrinsics();
         if a.json {
-            let out = serde_json::json!({
-                "recording": a.recording,
-                "depth_stream": d.name,
-                "depth_frames": d.frames.len(),
-                "depth_stamps_s": d.frames.iter().map(|f| f.t_s).collect::<Vec<_>>(),
-                "color_stream": rec.color().map(|c| c.name.clone()),
-                "color_frames": rec.color().map(|c| c.frames.len()),
-                "intrinsics": i,
-                "tf": tf.edges(),
-            });
+            let out = depthcal::report::RecordingReport::new(rec.info(), &tf);
             println!("{}", serde_json::to_string_pretty(&out)?);
         } else {
             println!("{}", a.recording.display());
@@ -360,9 +351,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 fn print_report(r: &ImportReport, seconds: f64, json: bool) -> anyhow::Result<()> {
     let ap = &r.append;
     if json {
-        let mut v = serde_json::to_value(r)?;
-        v["seconds"] = serde_json::json!(seconds);
-        println!("{}", serde_json::to_string_pretty(&v)?);
+        let out = depthcal::report::ImportReport::new(r, seconds);
+        println!("{}", serde_json::to_string_pretty(&out)?);
         return Ok(());
     }
     let what = match (ap.created_cell, ap.created_robot) {

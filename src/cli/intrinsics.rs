@@ -90,30 +90,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     let i = &c.intrinsics;
     if a.json {
-        let mut v = serde_json::to_value(i)?;
-        let o = v
-            .as_object_mut()
-            .expect("intrinsics serialise to an object");
-        o.insert("board".into(), serde_json::to_value(board)?);
-        o.insert(
-            "views".into(),
-            serde_json::to_value(&c.views).unwrap_or_default(),
-        );
-        o.insert(
-            "rejected".into(),
-            serde_json::json!(c
-                .rejected
-                .iter()
-                .map(|(n, r)| serde_json::json!({"image": n, "reason": r}))
-                .collect::<Vec<_>>()),
-        );
-        o.insert(
-            "sigma".into(),
-            serde_json::json!({"fx": c.sigma[0], "fy": c.sigma[1], "ppx": c.sigma[2], "ppy": c.sigma[3],
-                               "coeffs": &c.sigma[4..9]}),
-        );
-        o.insert("config".into(), serde_json::to_value(&cfg)?);
-        println!("{}", serde_json::to_string_pretty(&v)?);
+        let out = depthcal::report::IntrinsicsReport::new(&c, &board, &cfg)?;
+        println!("{}", serde_json::to_string_pretty(&out)?);
         return Ok(());
     }
     println!(

@@ -21,7 +21,8 @@ pub struct Args {
     /// JSON file with any fields of MarkerConfig (see src/vision/markers.rs); the flags override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Print one JSON object on stdout: {"images": [{"path", "markers": [{"id", "corners"}]}], ...}.
+    /// Print one JSON object on stdout (schema `depthcal.markers/1`): {"images": [{"path", "markers":
+    /// [{"id", "corners_px"}]}], ...}.
     #[arg(long)]
     pub json: bool,
     /// Write DIR/<image stem>_markers.png for each image, with the outlines, corner 0 and ids drawn
@@ -81,16 +82,11 @@ fn annotation_paths(images: &[PathBuf], dir: &std::path::Path) -> anyhow::Result
     Ok(out)
 }
 
-/// Rounds a pixel coordinate to 1/10000 px for output.
-#[cfg(feature = "vision")]
-fn px(v: f64) -> f64 {
-    (v * 1e4).round() / 1e4
-}
-
 /// Runs `depthcal markers`.
 #[cfg(feature = "vision")]
 pub fn run(a: Args) -> anyhow::Result<()> {
     use anyhow::Context;
+    use depthcal::report::{MarkerImageReport, MarkersReport};
     use depthcal::vision::markers::{detect_markers, CornerOrder, MarkerConfig};
     use depthcal::vision::{read_grey_image, write_marker_annotation};
     let mut cfg: MarkerConfig =
@@ -117,7 +113,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         None => None,
     };
     let detector = cfg.detector.resolve(cfg.dictionary);
-    let mut images_json = Vec::with_capacity(a.images.len());
+    let mut images = Vec::with_capacity(a.images.len());
     for (k, path) in a.images.iter().enumerate() {
         let img = read_grey_image(path)?;
         let found = detect_markers(&img, &cfg)
@@ -127,21 +123,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             eprintln!("wrote {}", paths[k].display());
         }
         if a.json {
-            let markers: Vec<serde_json::Value> = found
-                .iter()
-                .map(|m| {
-                    serde_json::json!({
-                        "id": m.id,
-                        "corners": m.corners.iter().map(|p| [px(p.x), px(p.y)]).collect::<Vec<_>>(),
-                    })
-                })
-                .collect();
-            images_json.push(serde_json::json!({
-                "path": path.to_string_lossy(),
-                "width": img.width,
-                "height": img.height,
-                "markers": markers,
-            }));
+            images.push(MarkerImageReport::new(path, &img, &found));
             continue;
         }
         println!(
@@ -162,13 +144,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
     }
     if a.json {
-        let order = cfg.detector.corner_order(cfg.dictionary);
-        let v = serde_json::json!({
-            "dictionary": cfg.dictionary,
-            "detector": detector.name(),
-            "corner_order": order,
-            "images": images_json,
-        });
+        let v = MarkersReport::new(&cfg, images);
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         println!(

@@ -40,8 +40,8 @@ pub struct Args {
     /// Inlier threshold of the homography: transfer error in IMAGE2, pixels.
     #[arg(long, value_name = "PX", default_value_t = 3.0)]
     pub threshold: f64,
-    /// Print one JSON object on stdout: {"matches", "inliers", "homography" (3x3, h22 = 1, or null),
-    /// "pairs": [{"p1", "p2", "distance", "inlier"}], ...}.
+    /// Print one JSON object on stdout (schema `depthcal.match/1`): {"matches", "inliers", "homography"
+    /// (3x3, h22 = 1, or null), "pairs": [{"p1_px", "p2_px", "distance", "inlier"}], ...}.
     #[arg(long)]
     pub json: bool,
     /// Write the two images side by side with the matches (inliers green, outliers red) to this PNG.
@@ -115,27 +115,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         depthcal::sim::write_rgb_png(out, &picture)?;
         eprintln!("wrote {}", out.display());
     }
-    let rows = fit.as_ref().map(|h| {
-        (0..3)
-            .map(|r| (0..3).map(|c| h.h[(r, c)]).collect::<Vec<f64>>())
-            .collect::<Vec<_>>()
-    });
     if a.json {
-        let v = serde_json::json!({
-            "image1": a.image1.display().to_string(),
-            "image2": a.image2.display().to_string(),
-            "detector": kind.name(),
-            "keypoints1": f1.len(),
-            "keypoints2": f2.len(),
-            "matches": matches.len(),
-            "inliers": n_in,
-            "threshold_px": hcfg.threshold_px,
-            "homography": rows,
-            "pairs": matches.iter().zip(&pairs).zip(&inliers).map(|((m, (a, b)), inl)| serde_json::json!({
-                "p1": [a.x, a.y], "p2": [b.x, b.y], "distance": m.distance, "inlier": inl,
-            })).collect::<Vec<_>>(),
-            "config": {"features": cfg, "homography": hcfg},
-        });
+        let v = depthcal::report::MatchReport::new(
+            (a.image1.as_path(), a.image2.as_path()),
+            (&f1, &f2),
+            &matches,
+            fit.as_ref(),
+            &cfg,
+            &hcfg,
+        )?;
         println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }
@@ -153,11 +141,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         if cfg.cross_check { "on" } else { "off" },
         hcfg.threshold_px
     );
-    match &rows {
-        Some(rows) => {
+    match &fit {
+        Some(h) => {
             println!("homography (IMAGE1 pixels to IMAGE2 pixels, h22 = 1):");
-            for r in rows {
-                println!("  {:>16.9e} {:>16.9e} {:>16.9e}", r[0], r[1], r[2]);
+            for r in 0..3 {
+                println!(
+                    "  {:>16.9e} {:>16.9e} {:>16.9e}",
+                    h.h[(r, 0)],
+                    h.h[(r, 1)],
+                    h.h[(r, 2)]
+                );
             }
         }
         None => println!(

@@ -77,7 +77,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 #[cfg(feature = "sim")]
 pub fn run(a: Args) -> anyhow::Result<()> {
     use anyhow::{bail, Context};
-    use depthcal::geometry::transform::isometry_to_nested;
     use depthcal::sim::{SimCell, SimConfig};
     use indicatif::{ProgressBar, ProgressStyle};
     use std::time::Instant;
@@ -188,21 +187,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let dist = t.translation.vector.norm();
     let (_, _, yaw) = t.rotation.euler_angles();
     if a.json {
-        let out = serde_json::json!({
-            "out_dir": a.out_dir,
-            "seed": cfg.seed,
-            "robots": cell.robots.iter().map(|r| &r.name).collect::<Vec<_>>(),
-            "frames_per_robot": cfg.frames,
-            "resolution": cfg.resolution.to_string(),
-            "objects": cell.scene.objects.len(),
-            "T_base1_base2": isometry_to_nested(&t),
-            "base_distance_m": dist,
-            "shared_fraction": cell.shared,
-            "view_spread": cell.view_spread,
-            "files": stats.files,
-            "bytes": stats.bytes,
-            "seconds": seconds,
-        });
+        let out = depthcal::report::SimulationReport::new(&cell, &cfg, &stats, &a.out_dir, seconds);
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
         println!(

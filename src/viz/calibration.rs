@@ -3,7 +3,7 @@
 //! transform in every format; quality and verdict.
 
 use super::page::{banner, details, esc, list, num, section, table, viewer};
-use super::scene::{frustum, triad, Segment, FLAGGED, PALETTE};
+use super::scene::{frustum, triad, Item, Segment, FLAGGED, PALETTE};
 use super::sections::{
     consistency_section, convergence_section, degeneracy_cell, lines_item, log_section,
     matrix_block, matrix_table, pose_formats, residual_section, sigma, three,
@@ -50,6 +50,50 @@ pub(super) fn base_and_cameras(
         ));
     }
     s
+}
+
+/// Where [`robot_lines`] draws the other robot's base and cameras.
+pub(super) struct OtherAt {
+    /// Appended to `<robot> base and cameras` in the item's name.
+    pub suffix: String,
+    /// `T_base1_base2` it is drawn under.
+    pub transform: Isometry3<f64>,
+    /// Shown when the page opens.
+    pub visible: bool,
+    /// The views that show it.
+    pub views: Vec<&'static str>,
+}
+
+/// The line items of both robots' base triads and camera frusta: the reference robot's in place (every
+/// view), then the other robot's under each of `other_at`. Triads are sized to the fused clouds; frames the
+/// consistency check of `cal` flagged are red.
+pub(super) fn robot_lines(
+    (rr, or): (&CellRobot, &CellRobot),
+    fused: &FusedCell,
+    cal: Option<&Calibration>,
+    other_at: Vec<OtherAt>,
+) -> Vec<Item> {
+    let len =
+        triad_length(extent(&fused.reference.cloud.points).max(extent(&fused.other.cloud.points)));
+    let cons = |name: &str| cal.and_then(|c| c.consistency.iter().find(|r| r.robot == name));
+    let mut items = vec![lines_item(
+        format!("{} base and cameras", rr.name),
+        base_and_cameras(rr, cons(&rr.name), len, PALETTE[0]),
+        Isometry3::identity(),
+        true,
+        vec!["refined", "initial"],
+    )];
+    let lines = base_and_cameras(or, cons(&or.name), len, PALETTE[1]);
+    items.extend(other_at.into_iter().map(|at| {
+        lines_item(
+            format!("{} base and cameras{}", or.name, at.suffix),
+            lines.clone(),
+            at.transform,
+            at.visible,
+            at.views,
+        )
+    }));
+    items
 }
 
 /// The diagonal of the bounding box of some points (0 for none).
@@ -243,37 +287,27 @@ pub fn calibration_report(
         reach: reach(c, fused),
     };
     let (mut sc, residuals) = two.scene();
-    let len =
-        triad_length(extent(&fused.reference.cloud.points).max(extent(&fused.other.cloud.points)));
-    let cons = |name: &str| c.consistency.iter().find(|r| r.robot == name);
-    sc.items.push(lines_item(
-        format!("{} base and cameras", c.reference),
-        base_and_cameras(rr, cons(&rr.name), len, PALETTE[0]),
-        Isometry3::identity(),
-        true,
-        vec!["refined", "initial"],
-    ));
-    let other_lines = base_and_cameras(or, cons(&or.name), len, PALETTE[1]);
+    let mut other_at = Vec::new();
     if c.refined {
-        sc.items.push(lines_item(
-            format!("{} base and cameras, refined", c.other),
-            other_lines.clone(),
-            c.transform,
-            true,
-            vec!["refined"],
-        ));
+        other_at.push(OtherAt {
+            suffix: ", refined".into(),
+            transform: c.transform,
+            visible: true,
+            views: vec!["refined"],
+        });
     }
-    sc.items.push(lines_item(
-        format!("{} base and cameras, initial estimate", c.other),
-        other_lines,
-        c.initial.transform,
-        !c.refined,
-        if c.refined {
+    other_at.push(OtherAt {
+        suffix: ", initial estimate".into(),
+        transform: c.initial.transform,
+        visible: !c.refined,
+        views: if c.refined {
             vec!["initial"]
         } else {
             vec!["refined", "initial"]
         },
-    ));
+    });
+    sc.items
+        .extend(robot_lines((rr, or), fused, Some(c), other_at));
     sc.fit_camera();
 
     let cell_name = cell

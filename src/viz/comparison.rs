@@ -2,12 +2,11 @@
 //! cloud placed by each method's result (toggles), the residual of each, and the lead method's (the first
 //! trusted one, else the first that ran) consistency and ICP convergence.
 
-use super::calibration::{base_and_cameras, extent, quality_table, reach, summary, triad_length};
+use super::calibration::{quality_table, reach, robot_lines, summary, OtherAt};
 use super::page::{banner, details, esc, grid, section, viewer};
 use super::scene::PALETTE;
 use super::sections::{
-    consistency_section, convergence_section, lines_item, matrix_table, pose_formats,
-    residual_section,
+    consistency_section, convergence_section, matrix_table, pose_formats, residual_section,
 };
 use super::{finish, Placement, Report, TwoClouds};
 use crate::calibration::robot_to_robot::{robot_pair, Calibration, FusedCell};
@@ -100,38 +99,24 @@ pub fn comparison_report(cell: &Cell, fused: &FusedCell, runs: &[MethodRun]) -> 
         }),
     };
     let (mut sc, residuals) = two.scene();
-    let len =
-        triad_length(extent(&fused.reference.cloud.points).max(extent(&fused.other.cloud.points)));
-    fn cons<'c>(
-        c: Option<&'c Calibration>,
-        name: &str,
-    ) -> Option<&'c crate::calibration::consistency::RobotConsistency> {
-        c.and_then(|c| c.consistency.iter().find(|r| r.robot == name))
-    }
-    sc.items.push(lines_item(
-        format!("{} base and cameras", rr.name),
-        base_and_cameras(rr, cons(lead_cal, &rr.name), len, PALETTE[0]),
-        Isometry3::identity(),
-        true,
-        vec!["refined", "initial"],
-    ));
-    if let Some(c) = lead_cal {
-        let lines = base_and_cameras(or, cons(lead_cal, &or.name), len, PALETTE[1]);
-        sc.items.push(lines_item(
-            format!("{} base and cameras by {}", or.name, c.method),
-            lines.clone(),
-            c.transform,
-            true,
-            vec!["refined"],
-        ));
-        sc.items.push(lines_item(
-            format!("{} base and cameras, initial estimate", or.name),
-            lines,
-            c.initial.transform,
-            false,
-            vec!["initial"],
-        ));
-    }
+    let other_at = lead_cal.map_or_else(Vec::new, |c| {
+        vec![
+            OtherAt {
+                suffix: format!(" by {}", c.method),
+                transform: c.transform,
+                visible: true,
+                views: vec!["refined"],
+            },
+            OtherAt {
+                suffix: ", initial estimate".into(),
+                transform: c.initial.transform,
+                visible: false,
+                views: vec!["initial"],
+            },
+        ]
+    });
+    sc.items
+        .extend(robot_lines((rr, or), fused, lead_cal, other_at));
     sc.fit_camera();
 
     let rows: Vec<Vec<String>> = runs
