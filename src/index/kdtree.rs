@@ -1,32 +1,297 @@
-//! The 3-D nearest-neighbour index: a thin wrapper over kiddo's `ImmutableKdTree<f32, 3>`.
+//! The 3-D nearest-neighbour index: a static kd-tree over `f32` points, built in parallel and queried
+//! from many threads.
 //!
-//! Built once, queried from many threads. All distances returned are **squared** Euclidean distances in
-//! the cloud's unit squared, and results are ordered by (distance, index) so that they are deterministic.
+//! Median splits along the widest axis, leaves of at most 12 points stored contiguously with their
+//! original indices, and each node's tight bounding box: a query visits the children nearer box first and
+//! skips any box farther than its current bound. Tight boxes (rather than the split planes alone) keep
+//! queries far from the cloud cheap: above a large plane, split-plane bounds leave every cell under the
+//! query's horizontal disc to visit. It replaced kiddo's `ImmutableKdTree` (6.3), measured on 225k points
+//! of three 3 m planes at 1 cm with 20k queries, half on the surfaces and half 0.2-1 m off them, CPU
+//! time on a loaded 2-core machine: nearest 49-74 ms against kiddo's 209-259 ms; the 30 nearest within
+//! 2 cm of 10k points on the surfaces 37-46 ms against 85-148 ms; build 11 ms against 38-58 ms; and a
+//! nearest search bounded by a distance ([`KdIndex::nearest_within`], what ICP asks) 19-39 ms.
+//!
+//! All distances returned are **squared** Euclidean distances in the cloud's unit squared, computed in
+//! `f32`; ties are broken by index, so results are deterministic and do not depend on the thread count.
 
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
-use std::num::NonZeroUsize;
+/// Points per leaf at most.
+const LEAF: usize = 12;
+
+/// A node of the tree with the tight bounding box of its points: an internal node has the children `a`
+/// and `b` (node indices); a leaf holds the points `a..b` of the reordered array.
+#[derive(Clone, Copy, Debug)]
+struct Node {
+    lo: [f32; 3],
+    hi: [f32; 3],
+    a: u32,
+    b: u32,
+    leaf: bool,
+}
+
+/// The placeholder a node starts as.
+const EMPTY_NODE: Node = Node {
+    lo: [0.0; 3],
+    hi: [0.0; 3],
+    a: 0,
+    b: 0,
+    leaf: true,
+};
+
+/// The tree proper: its nodes (the root first), and the points reordered leaf by leaf with their original
+/// indices.
+struct Tree {
+    nodes: Vec<Node>,
+    items: Vec<([f32; 3], u32)>,
+}
+
+/// Squared distance in `f32`, summed x, y, z.
+#[inline(always)]
+fn dist2(a: &[f32; 3], b: &[f32; 3]) -> f32 {
+    let (dx, dy, dz) = (a[0] - b[0], a[1] - b[1], a[2] - b[2]);
+    dx * dx + dy * dy + dz * dz
+}
+
+/// Squared distance from `q` to a node's box (0 inside).
+#[inline(always)]
+fn box_dist2(q: &[f32; 3], n: &Node) -> f32 {
+    let mut s = 0.0;
+    for (k, &qk) in q.iter().enumerate() {
+        let d = (n.lo[k] - qk).max(qk - n.hi[k]).max(0.0);
+        s += d * d;
+    }
+    s
+}
+
+/// `(d, i)` before `(e, j)`: by distance, ties by index.
+#[inline(always)]
+fn before(d: f32, i: u32, e: f32, j: u32) -> bool {
+    d < e || (d == e && i < j)
+}
+
+/// Nodes of the subtree over `n` points.
+fn subtree_nodes(n: usize) -> usize {
+    if n <= LEAF {
+        1
+    } else {
+        1 + subtree_nodes(n / 2) + subtree_nodes(n - n / 2)
+    }
+}
+
+/// Subtrees of more points than this are built on two threads.
+const PARALLEL_BUILD: usize = 32_768;
+
+/// The deepest stack a query needs: one entry per tree level (a median split halves the points).
+const STACK: usize = 64;
+
+impl Tree {
+    fn build(points: &[[f32; 3]]) -> Tree {
+        let mut items: Vec<([f32; 3], u32)> = points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (*p, i as u32))
+            .collect();
+        let mut nodes = vec![EMPTY_NODE; subtree_nodes(points.len())];
+        Self::build_rec(&mut items, 0, &mut nodes, 0);
+        Tree { nodes, items }
+    }
+
+    /// Fills `nodes` (exactly the subtree's, its root first, node indices from `first`) with the subtree
+    /// over `items` (which start at `offset` in the whole array). The split is at the median of the
+    /// box's widest axis, ties by index: the same tree at any thread count.
+    fn build_rec(items: &mut [([f32; 3], u32)], offset: usize, nodes: &mut [Node], first: usize) {
+        let n = items.len();
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for (p, _) in items.iter() {
+            for k in 0..3 {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        }
+        if n <= LEAF {
+            nodes[0] = Node {
+                lo,
+                hi,
+                a: offset as u32,
+                b: (offset + n) as u32,
+                leaf: true,
+            };
+            return;
+        }
+        let dim = (0..3).fold(0, |best, k| {
+            if hi[k] - lo[k] > hi[best] - lo[best] {
+                k
+            } else {
+                best
+            }
+        });
+        let mid = n / 2;
+        items.select_nth_unstable_by(mid, |x, y| {
+            x.0[dim].total_cmp(&y.0[dim]).then(x.1.cmp(&y.1))
+        });
+        let (root, rest) = nodes.split_first_mut().expect("a node per subtree");
+        let (ln, rn) = rest.split_at_mut(subtree_nodes(mid));
+        let (left, right) = (first + 1, first + 1 + ln.len());
+        *root = Node {
+            lo,
+            hi,
+            a: left as u32,
+            b: right as u32,
+            leaf: false,
+        };
+        let (l, r) = items.split_at_mut(mid);
+        if n > PARALLEL_BUILD {
+            rayon::join(
+                || Self::build_rec(l, offset, ln, left),
+                || Self::build_rec(r, offset + mid, rn, right),
+            );
+        } else {
+            Self::build_rec(l, offset, ln, left);
+            Self::build_rec(r, offset + mid, rn, right);
+        }
+    }
+
+    /// Visits the leaves whose boxes lie within the current bound of `q`, nearer child first. `bound`
+    /// gives the bound (it may shrink as `leaf` finds points); `leaf` gets each leaf's points.
+    #[inline(always)]
+    fn search(
+        &self,
+        q: &[f32; 3],
+        mut bound: impl FnMut() -> f32,
+        mut leaf: impl FnMut(&[([f32; 3], u32)]),
+    ) {
+        let mut stack = [(0u32, 0f32); STACK];
+        let root = &self.nodes[0];
+        let d0 = box_dist2(q, root);
+        if d0 > bound() {
+            return;
+        }
+        stack[0] = (0, d0);
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let (ni, lb) = stack[top];
+            if lb > bound() {
+                continue;
+            }
+            let node = &self.nodes[ni as usize];
+            if node.leaf {
+                leaf(&self.items[node.a as usize..node.b as usize]);
+                continue;
+            }
+            let (l, r) = (node.a, node.b);
+            let dl = box_dist2(q, &self.nodes[l as usize]);
+            let dr = box_dist2(q, &self.nodes[r as usize]);
+            let ((n, dn), (f, df)) = if dl <= dr {
+                ((l, dl), (r, dr))
+            } else {
+                ((r, dr), (l, dl))
+            };
+            let b = bound();
+            if df <= b {
+                stack[top] = (f, df);
+                top += 1;
+            }
+            if dn <= b {
+                stack[top] = (n, dn);
+                top += 1;
+            }
+        }
+    }
+
+    /// The nearest point within squared distance `max_d2` (inclusive): `(index, d²)`; ties to the
+    /// smaller index.
+    #[inline]
+    fn nearest(&self, q: &[f32; 3], max_d2: f32) -> Option<(u32, f32)> {
+        let mut best = (u32::MAX, max_d2);
+        let mut found = false;
+        let best_ref = std::cell::Cell::new(max_d2);
+        self.search(
+            q,
+            || best_ref.get(),
+            |pts| {
+                for (p, id) in pts {
+                    let d = dist2(q, p);
+                    if d < best.1 || (d == best.1 && (!found || *id < best.0)) {
+                        best = (*id, d);
+                        found = true;
+                        best_ref.set(d);
+                    }
+                }
+            },
+        );
+        found.then_some(best)
+    }
+
+    /// The (at most) `k` nearest points within squared distance `max_d2`, into `out` sorted by
+    /// (distance, index).
+    fn knn_into(&self, q: &[f32; 3], k: usize, max_d2: f32, out: &mut Vec<(usize, f32)>) {
+        out.clear();
+        if k == 0 {
+            return;
+        }
+        // The bound: max_d2 until k are found, then the k-th distance.
+        let bound = std::cell::Cell::new(max_d2);
+        self.search(
+            q,
+            || bound.get(),
+            |pts| {
+                for (p, id) in pts {
+                    let d = dist2(q, p);
+                    if d > bound.get() {
+                        continue;
+                    }
+                    if out.len() == k {
+                        let (li, ld) = out[k - 1];
+                        if !before(d, *id, ld, li as u32) {
+                            continue;
+                        }
+                        out.pop();
+                    }
+                    let mut pos = out.len();
+                    while pos > 0 && before(d, *id, out[pos - 1].1, out[pos - 1].0 as u32) {
+                        pos -= 1;
+                    }
+                    out.insert(pos, (*id as usize, d));
+                    if out.len() == k {
+                        bound.set(out[k - 1].1);
+                    }
+                }
+            },
+        );
+    }
+
+    /// Every point within squared distance `max_d2`, appended to `out` unordered.
+    fn within_into(&self, q: &[f32; 3], max_d2: f32, out: &mut Vec<(usize, f32)>) {
+        self.search(
+            q,
+            || max_d2,
+            |pts| {
+                for (p, id) in pts {
+                    let d = dist2(q, p);
+                    if d <= max_d2 {
+                        out.push((*id as usize, d));
+                    }
+                }
+            },
+        );
+    }
+}
 
 /// A static kd-tree over a slice of `f32` points. Item ids are indices into that slice.
 pub struct KdIndex {
-    tree: Option<ImmutableKdTree<f32, 3>>,
+    tree: Option<Tree>,
     len: usize,
-}
-
-fn sort_hits(v: &mut [(usize, f32)]) {
-    v.sort_unstable_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
 }
 
 impl KdIndex {
     /// Builds the index. Points must be finite (see [`crate::PointCloud::drop_non_finite`]).
     pub fn new(points: &[[f32; 3]]) -> Self {
-        let tree = if points.is_empty() {
-            None
-        } else {
-            Some(
-                ImmutableKdTree::new_from_slice(points)
-                    .expect("kd-tree construction failed on finite points"),
-            )
-        };
+        assert!(
+            points.len() < u32::MAX as usize,
+            "a kd-tree indexes fewer than 2^32 points"
+        );
+        let tree = (!points.is_empty()).then(|| Tree::build(points));
         KdIndex {
             tree,
             len: points.len(),
@@ -46,57 +311,61 @@ impl KdIndex {
     /// The nearest point: `(index, squared distance)`, or `None` for an empty index.
     #[inline]
     pub fn nearest(&self, p: &[f32; 3]) -> Option<(usize, f32)> {
-        let t = self.tree.as_ref()?;
-        let r = t.query(p).nearest_one::<SquaredEuclidean<f32>>().execute();
-        Some((r.item as usize, r.distance))
+        self.nearest_within(p, f32::INFINITY)
     }
 
-    /// The `k` nearest points, closest first.
+    /// The nearest point at most `max_d2` away (a **squared** distance, inclusive): `(index, squared
+    /// distance)`, or `None` when there is none. Much cheaper than [`KdIndex::nearest`] for points far
+    /// from the cloud, whose result would be thrown away anyway.
+    #[inline]
+    pub fn nearest_within(&self, p: &[f32; 3], max_d2: f32) -> Option<(usize, f32)> {
+        let (i, d) = self.tree.as_ref()?.nearest(p, max_d2)?;
+        Some((i as usize, d))
+    }
+
+    /// The `k` nearest points, closest first (ties by index).
     pub fn knn(&self, p: &[f32; 3], k: usize) -> Vec<(usize, f32)> {
-        let (Some(t), Some(k)) = (self.tree.as_ref(), NonZeroUsize::new(k)) else {
-            return Vec::new();
-        };
-        let mut out: Vec<(usize, f32)> = t
-            .query(p)
-            .nearest_n::<SquaredEuclidean<f32>>(k)
-            .execute()
-            .into_iter()
-            .map(|r| (r.item as usize, r.distance))
-            .collect();
-        sort_hits(&mut out);
+        let mut out = Vec::with_capacity(k.min(self.len));
+        self.knn_into(p, k, &mut out);
         out
     }
 
-    /// At most `max_n` points within `radius` (not squared), closest first.
+    /// As [`KdIndex::knn`], into `out` (cleared first; reuse it across queries to save the allocation).
+    pub fn knn_into(&self, p: &[f32; 3], k: usize, out: &mut Vec<(usize, f32)>) {
+        out.clear();
+        if let Some(t) = &self.tree {
+            t.knn_into(p, k, f32::INFINITY, out);
+        }
+    }
+
+    /// At most `max_n` points within `radius` (not squared, inclusive), closest first (ties by index).
     pub fn within(&self, p: &[f32; 3], radius: f32, max_n: usize) -> Vec<(usize, f32)> {
-        let (Some(t), Some(k)) = (self.tree.as_ref(), NonZeroUsize::new(max_n)) else {
-            return Vec::new();
-        };
-        let mut out: Vec<(usize, f32)> = t
-            .query(p)
-            .nearest_n::<SquaredEuclidean<f32>>(k)
-            .within(radius * radius)
-            .execute()
-            .into_iter()
-            .map(|r| (r.item as usize, r.distance))
-            .collect();
-        sort_hits(&mut out);
+        let mut out = Vec::new();
+        self.within_into(p, radius, max_n, &mut out);
         out
     }
 
-    /// Every point within `radius` (not squared), in index order.
+    /// As [`KdIndex::within`], into `out` (cleared first; reuse it across queries to save the
+    /// allocation).
+    pub fn within_into(
+        &self,
+        p: &[f32; 3],
+        radius: f32,
+        max_n: usize,
+        out: &mut Vec<(usize, f32)>,
+    ) {
+        out.clear();
+        if let Some(t) = &self.tree {
+            t.knn_into(p, max_n, radius * radius, out);
+        }
+    }
+
+    /// Every point within `radius` (not squared, inclusive), in index order.
     pub fn within_all(&self, p: &[f32; 3], radius: f32) -> Vec<(usize, f32)> {
-        let Some(t) = self.tree.as_ref() else {
-            return Vec::new();
-        };
-        let mut out: Vec<(usize, f32)> = t
-            .query(p)
-            .within::<SquaredEuclidean<f32>>(radius * radius)
-            .unsorted()
-            .execute()
-            .into_iter()
-            .map(|r| (r.item as usize, r.distance))
-            .collect();
+        let mut out = Vec::new();
+        if let Some(t) = &self.tree {
+            t.within_into(p, radius * radius, &mut out);
+        }
         out.sort_unstable_by_key(|h| h.0);
         out
     }
@@ -106,6 +375,10 @@ impl KdIndex {
 mod tests {
     use super::*;
     use crate::geometry::Rng;
+
+    fn sort_hits(v: &mut [(usize, f32)]) {
+        v.sort_unstable_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+    }
 
     fn brute(points: &[[f32; 3]], q: &[f32; 3]) -> Vec<(usize, f32)> {
         let mut v: Vec<(usize, f32)> = points
@@ -151,12 +424,12 @@ mod tests {
                 rng.uniform(-1.2, 1.2) as f32,
             ];
             let b = brute(&pts, &q);
-            let (_, d) = idx.nearest(&q).unwrap();
-            assert_eq!(d, b[0].1);
-            let k = idx.knn(&q, 10);
-            let kd: Vec<f32> = k.iter().map(|h| h.1).collect();
-            let bd: Vec<f32> = b[..10].iter().map(|h| h.1).collect();
-            assert_eq!(kd, bd);
+            // Exactly the brute force's answers, ties by index included.
+            assert_eq!(idx.nearest(&q), Some(b[0]));
+            assert_eq!(idx.knn(&q, 10), b[..10].to_vec());
+            let r2 = 0.01f32;
+            let want = (b[0].1 <= r2).then_some(b[0]);
+            assert_eq!(idx.nearest_within(&q, r2), want);
             let r = 0.3f32;
             let mut w: Vec<usize> = idx.within_all(&q, r).iter().map(|h| h.0).collect();
             let mut bw: Vec<usize> = b.iter().filter(|h| h.1 <= r * r).map(|h| h.0).collect();
@@ -164,11 +437,55 @@ mod tests {
             bw.sort_unstable();
             assert_eq!(w, bw);
             let wn = idx.within(&q, r, 7);
-            assert_eq!(wn.len(), bw.len().min(7));
-            for (a, c) in wn.iter().zip(b.iter()) {
-                assert_eq!(a.1, c.1);
-            }
+            assert_eq!(
+                wn,
+                b.iter()
+                    .filter(|h| h.1 <= r * r)
+                    .take(7)
+                    .copied()
+                    .collect::<Vec<_>>()
+            );
         }
         assert!(KdIndex::new(&[]).nearest(&[0.0; 3]).is_none());
+        assert!(KdIndex::new(&[]).knn(&[0.0; 3], 3).is_empty());
+    }
+
+    /// Queries far from the cloud (above a plane, outside it) and a cloud big enough for the parallel
+    /// build, against brute force; the same tree at one and two threads.
+    #[test]
+    fn far_queries_and_parallel_build() {
+        let mut rng = Rng::new(9);
+        let pts: Vec<[f32; 3]> = (0..70_000)
+            .map(|i| {
+                let (a, b) = (rng.uniform(0.0, 3.0) as f32, rng.uniform(0.0, 3.0) as f32);
+                let n = rng.uniform(-5e-4, 5e-4) as f32;
+                match i % 3 {
+                    0 => [a, b, n],
+                    1 => [a, n, b],
+                    _ => [n, a, b],
+                }
+            })
+            .collect();
+        let idx = KdIndex::new(&pts);
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let idx1 = one.install(|| KdIndex::new(&pts));
+        for _ in 0..60 {
+            let q = [
+                rng.uniform(-1.0, 4.0) as f32,
+                rng.uniform(-1.0, 4.0) as f32,
+                rng.uniform(0.2, 2.0) as f32,
+            ];
+            let b = brute(&pts, &q);
+            assert_eq!(idx.nearest(&q), Some(b[0]));
+            assert_eq!(idx1.nearest(&q), Some(b[0]));
+            assert_eq!(idx.knn(&q, 5), b[..5].to_vec());
+            assert_eq!(
+                idx.nearest_within(&q, 0.04),
+                (b[0].1 <= 0.04).then_some(b[0])
+            );
+        }
     }
 }

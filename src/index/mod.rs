@@ -1,4 +1,4 @@
-//! Nearest-neighbour index over 3-D positions: the kd-tree [`KdIndex`] (kiddo). Nearest neighbours in
+//! Nearest-neighbour index over 3-D positions: the kd-tree [`KdIndex`]. Nearest neighbours in
 //! the 33-D FPFH space are [`crate::features::nearest`].
 
 mod kdtree;

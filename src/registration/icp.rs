@@ -424,7 +424,8 @@ pub fn icp(
             .enumerate()
             .filter_map(|(i, p)| {
                 let pw = transform_point(&t, p);
-                let (j, d2) = target_index.nearest(&pw)?;
+                // Pairs beyond the distance limit are never used: a bounded search skips them early.
+                let (j, d2) = target_index.nearest_within(&pw, maxd2)?;
                 if let Some((cmin, ns, nt)) = compat {
                     let n = ns[i];
                     let m = &rot32;

@@ -1157,12 +1157,9 @@ fn surface_agreement(
         .enumerate()
         .filter(|(i, p)| {
             let pw = crate::geometry::cloud::transform_point(t, p);
-            let Some((j, d2)) = target.index.nearest(&pw) else {
+            let Some((j, _)) = target.index.nearest_within(&pw, reach2) else {
                 return false;
             };
-            if d2 > reach2 {
-                return false;
-            }
             let nt = to_v64(&tn[j]);
             if let Some(sn) = source_normals {
                 let c = (t.rotation * to_v64(&sn[*i])).dot(&nt);
