@@ -102,6 +102,7 @@ fn perturbed_hand_eyes_of_simulated_cells_are_recovered() {
             summary(&r, &truth)
         );
         assert!(r.trusted, "{:?}", r.reasons);
+        assert!(r.suggested_poses.is_empty());
         assert!(r.median_after_m < r.median_before_m);
         worst_ne = worst_ne
             .max(e.normalised_error)
@@ -181,6 +182,13 @@ fn degenerate_pose_sets_are_reported_not_solved() {
             .filter(|d| d.status != "observable")
             .map(|d| d.dof)
             .collect();
+        // Poses to add: rotations across the free directions, not about the flange axis used so far.
+        assert!(!r.suggested_poses.is_empty(), "{name}");
+        if rotate {
+            for p in &r.suggested_poses {
+                assert!(p.axis_ee[2].abs() < 0.5, "{p:?}");
+            }
+        }
         if rotate {
             // The flange z is within 10° of the camera's optical axis: the translation along it is free.
             assert!(free.contains(&"tz"), "{free:?}");
@@ -225,6 +233,29 @@ fn handeye_depth_command_prints_a_documented_report_and_exits_3_when_untrusted()
             < 0.3e-3
     );
     assert_eq!(v["frames"].as_array().unwrap().len(), 12);
+    // The same bytes at any thread count.
+    let (_, one, _) = depthcal(&[
+        "handeye",
+        "--depth",
+        &d,
+        "--robot",
+        "right",
+        "--json",
+        "--threads",
+        "1",
+    ]);
+    let (_, two, _) = depthcal(&[
+        "handeye",
+        "--depth",
+        &d,
+        "--robot",
+        "right",
+        "--json",
+        "--threads",
+        "3",
+    ]);
+    assert_eq!(one, out);
+    assert_eq!(two, out);
     // The output is a hand-eye file a cell reads.
     std::fs::write(dir.join("right_hand_eye.json"), &out).unwrap();
     let mut m = CellManifest::read(&dir).unwrap();
@@ -240,6 +271,13 @@ fn handeye_depth_command_prints_a_documented_report_and_exits_3_when_untrusted()
         out.contains("observability") && out.contains("trusted         yes"),
         "{out}"
     );
+    std::fs::write(dir.join("bad.json"), r#"{"gates_m": []}"#).unwrap();
+    let bad = dir.join("bad.json").display().to_string();
+    let (code, _, err) = depthcal(&[
+        "handeye", "--depth", &d, "--robot", "right", "--config", &bad,
+    ]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("gates_m"), "{err}");
     let (code, _, err) = depthcal(&["handeye", "--depth", &d, "--robot", "nobody"]);
     assert_eq!(code, 1, "{err}");
     assert!(err.contains("nobody"), "{err}");

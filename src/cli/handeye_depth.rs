@@ -66,6 +66,15 @@ fn print_text(r: &HandEyeDepthReport) {
             w.status, w.description, w.sigma_mm
         );
     }
+    for p in &r.suggested_poses {
+        let k = p.kuka_xyzabc;
+        println!(
+            "  capture       X {:.1} Y {:.1} Z {:.1} mm A {:.2} B {:.2} C {:.2} deg (frame {} turned {:+.0} deg about ({:.2}, {:.2}, {:.2}) in the flange frame, about the {}): {}",
+            k[0], k[1], k[2], k[3], k[4], k[5], p.from_frame, p.rotation_deg, p.axis_ee[0], p.axis_ee[1], p.axis_ee[2],
+            if p.pivot == "flange" { "flange origin" } else { "point the camera looks at" },
+            p.reason
+        );
+    }
     println!(
         "flange motion   largest rotation {:.1} deg, rotation axes spread {:.1} deg",
         r.flange_motion.max_rotation_deg, r.flange_motion.axis_spread_deg

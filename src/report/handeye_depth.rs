@@ -3,6 +3,7 @@
 
 use super::pose::{matrix6_rows, ErrorReport, PoseReport};
 use crate::calibration::handeye::depth::observe::{DofObservability, FlangeMotion, WeakDirection};
+use crate::calibration::handeye::depth::plan::SuggestedPose;
 use crate::calibration::handeye::depth::{FrameDepthResidual, HandEyeDepthResult};
 use crate::cell::GroundTruth;
 use crate::geometry::transform::pose_error;
@@ -102,6 +103,8 @@ pub struct HandEyeDepthReport {
     pub weak_directions: Vec<WeakDirection>,
     /// How the flange moved.
     pub flange_motion: FlangeMotion,
+    /// Flange poses to capture that would constrain the weak directions.
+    pub suggested_poses: Vec<SuggestedPose>,
     /// The range at which rotations are compared with translations, metres.
     pub characteristic_range_m: f64,
     /// Per-frame residuals before and after.
@@ -151,6 +154,7 @@ impl HandEyeDepthReport {
             dofs: r.dofs.clone(),
             weak_directions: r.weak_directions.clone(),
             flange_motion: r.flange_motion.clone(),
+            suggested_poses: r.suggested_poses.clone(),
             characteristic_range_m: r.characteristic_range_m,
             frames: r.frames.clone(),
             median_residual_before_m: r.median_before_m,

@@ -24,6 +24,7 @@
 //! rotation axis: the translation along it is free).
 
 pub mod observe;
+pub mod plan;
 pub(crate) mod residuals;
 
 use crate::calibration::consistency::ConsistencyConfig;
@@ -228,6 +229,8 @@ pub struct HandEyeDepthResult {
     pub flange_motion: FlangeMotion,
     /// The range at which rotations are compared with translations, metres (median sample depth).
     pub characteristic_range_m: f64,
+    /// Flange poses to capture so that the weak directions get constrained (empty when none is weak).
+    pub suggested_poses: Vec<plan::SuggestedPose>,
     /// Per frame, in pose-file order.
     pub frames: Vec<FrameDepthResidual>,
     /// Median over the frames of `before_m`, metres.
@@ -647,6 +650,9 @@ pub fn refine_hand_eye_from_depth(
             median_after_m * 1e3
         ));
     }
+    let ids: Vec<String> = robot.frames.iter().map(|f| f.id.clone()).collect();
+    let suggested_poses =
+        plan::suggest_poses(&weak_directions, &motion, &problem.t_base_ee, &ids, &x0, l);
     Ok(HandEyeDepthResult {
         robot: robot.name.clone(),
         frames_used: frames_with_tests,
@@ -656,6 +662,7 @@ pub fn refine_hand_eye_from_depth(
         covariance: cov,
         dofs,
         weak_directions,
+        suggested_poses,
         flange_motion: motion,
         characteristic_range_m: l,
         frames,
