@@ -355,9 +355,24 @@ impl KdIndex {
         out: &mut Vec<(usize, f32)>,
     ) {
         out.clear();
-        if let Some(t) = &self.tree {
+        let Some(t) = &self.tree else {
+            return;
+        };
+        if max_n <= 32 {
             t.knn_into(p, max_n, radius * radius, out);
+            return;
         }
+        // Many neighbours (FPFH's 100): gather all within the radius, then keep the `max_n` first by
+        // (distance, index): the same set and order as the bounded k-nearest search, without its
+        // insertion sort of up to `max_n` entries per point found.
+        t.within_into(p, radius * radius, out);
+        let by_distance =
+            |a: &(usize, f32), b: &(usize, f32)| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0));
+        if out.len() > max_n {
+            out.select_nth_unstable_by(max_n - 1, by_distance);
+            out.truncate(max_n);
+        }
+        out.sort_unstable_by(by_distance);
     }
 
     /// Every point within `radius` (not squared, inclusive), in index order.
@@ -436,6 +451,14 @@ mod tests {
             w.sort_unstable();
             bw.sort_unstable();
             assert_eq!(w, bw);
+            let wide = idx.within(&q, r, 40);
+            let want: Vec<(usize, f32)> = b
+                .iter()
+                .filter(|h| h.1 <= r * r)
+                .take(40)
+                .copied()
+                .collect();
+            assert_eq!(wide, want);
             let wn = idx.within(&q, r, 7);
             assert_eq!(
                 wn,

@@ -21,6 +21,7 @@ use crate::error::{check, Error, Result};
 use crate::geometry::cloud::{to_v64, transform_point};
 use crate::geometry::transform::apply_left_increment;
 use crate::index::KdIndex;
+use crate::preprocess::normals::LazyNormals;
 use crate::registration::kernel::RobustKernel;
 use nalgebra::{Isometry3, Matrix3, Matrix6, Vector3, Vector6};
 use rayon::prelude::*;
@@ -351,6 +352,54 @@ pub fn icp(
     init: &Isometry3<f64>,
     cfg: &IcpConfig,
 ) -> Result<IcpResult> {
+    icp_with(source, target, None, target_index, init, cfg)
+}
+
+/// As [`icp`], with the target's normals computed on first use (`lazy`, over `target.points`; its
+/// `normals` must be `None`): at a fine level only the target points paired with the source sample ever
+/// need a normal. The result is the one eager normals give, bit for bit.
+pub fn icp_lazy_normals(
+    source: &IcpCloud,
+    target: &IcpCloud,
+    lazy: &LazyNormals,
+    target_index: &KdIndex,
+    init: &Isometry3<f64>,
+    cfg: &IcpConfig,
+) -> Result<IcpResult> {
+    if target.normals.is_some() {
+        return Err(Error::InvalidInput(
+            "ICP with lazy normals takes a target without normals".into(),
+        ));
+    }
+    icp_with(source, target, Some(lazy), target_index, init, cfg)
+}
+
+/// The target's normals: a slice, computed on first use, or none.
+#[derive(Clone, Copy)]
+enum TargetNormals<'a> {
+    Slice(&'a [[f32; 3]]),
+    Lazy(&'a LazyNormals<'a>),
+}
+
+impl TargetNormals<'_> {
+    #[inline]
+    fn get(&self, j: usize) -> [f32; 3] {
+        match self {
+            TargetNormals::Slice(n) => n[j],
+            TargetNormals::Lazy(l) => l.get(j),
+        }
+    }
+}
+
+/// [`icp`] and [`icp_lazy_normals`].
+fn icp_with(
+    source: &IcpCloud,
+    target: &IcpCloud,
+    lazy: Option<&LazyNormals>,
+    target_index: &KdIndex,
+    init: &Isometry3<f64>,
+    cfg: &IcpConfig,
+) -> Result<IcpResult> {
     if cfg.max_correspondence_distance.is_nan()
         || cfg.max_correspondence_distance <= 0.0
         || cfg.translation_tolerance.is_nan()
@@ -377,7 +426,11 @@ pub fn icp(
             "ICP needs one normal / covariance per point".into(),
         ));
     }
-    let normals = target.normals;
+    let normals: Option<TargetNormals> = match (target.normals, lazy) {
+        (Some(n), _) => Some(TargetNormals::Slice(n)),
+        (None, Some(l)) => Some(TargetNormals::Lazy(l)),
+        (None, None) => None,
+    };
     let covariances = match cfg.factor {
         IcpFactor::PointToPlane => {
             if normals.is_none() {
@@ -429,7 +482,7 @@ pub fn icp(
                 if let Some((cmin, ns, nt)) = compat {
                     let n = ns[i];
                     let m = &rot32;
-                    let nt = nt[j];
+                    let nt = nt.get(j);
                     let dot: f32 = (0..3)
                         .map(|r| (m[r][0] * n[0] + m[r][1] * n[1] + m[r][2] * n[2]) * nt[r])
                         .sum();
@@ -466,7 +519,7 @@ pub fn icp(
             let r = row(
                 &pr.pw,
                 &target_pts[pr.j as usize],
-                &to_v64(&ns[pr.j as usize]),
+                &to_v64(&ns.get(pr.j as usize)),
             );
             let z = (Vector6::zeros(), 0.0);
             ([r, z, z], 1, r.1.abs())
@@ -587,7 +640,9 @@ mod tests {
     use super::*;
     use crate::geometry::transform::{pose_error, random_isometry};
     use crate::geometry::Rng;
-    use crate::preprocess::normals::{estimate_covariances, estimate_normals, NormalConfig};
+    use crate::preprocess::normals::{
+        estimate_covariances, estimate_normals, LazyNormals, NormalConfig,
+    };
 
     fn box_surface(rng: &mut Rng, n: usize) -> Vec<[f32; 3]> {
         // Points on three orthogonal planes and a bump: well-constrained in 6 DoF.
@@ -669,6 +724,67 @@ mod tests {
                 assert!(r.fitness > 0.95);
             }
         }
+    }
+
+    /// Lazy target normals give the eager result bit for bit, computing only the paired points' normals;
+    /// a target with normals of its own is refused.
+    #[test]
+    fn lazy_normals_give_the_eager_result() {
+        let mut rng = Rng::new(22);
+        let target = box_surface(&mut rng, 8000);
+        let idx = KdIndex::new(&target);
+        let ncfg = NormalConfig::default();
+        let normals = estimate_normals(&target, &idx, &ncfg);
+        let truth = random_isometry(&mut rng, 0.05, 0.03);
+        let src: Vec<[f32; 3]> = box_surface(&mut rng, 1000)
+            .iter()
+            .map(|p| transform_point(&truth.inverse(), p))
+            .collect();
+        let cfg = IcpConfig {
+            max_correspondence_distance: 0.2,
+            ..Default::default()
+        };
+        let source = IcpCloud::points(&src);
+        let eager = icp(
+            &source,
+            &IcpCloud {
+                points: &target,
+                normals: Some(&normals),
+                covariances: None,
+            },
+            &idx,
+            &Isometry3::identity(),
+            &cfg,
+        )
+        .unwrap();
+        let lazy = LazyNormals::new(&target, &idx, ncfg);
+        let r = icp_lazy_normals(
+            &source,
+            &IcpCloud::points(&target),
+            &lazy,
+            &idx,
+            &Isometry3::identity(),
+            &cfg,
+        )
+        .unwrap();
+        assert_eq!(r.transform, eager.transform);
+        assert_eq!(r.information, eager.information);
+        assert_eq!(r.iterations, eager.iterations);
+        assert!(lazy.computed() < target.len() / 2, "{}", lazy.computed());
+        let with_normals = IcpCloud {
+            points: &target,
+            normals: Some(&normals),
+            covariances: None,
+        };
+        assert!(icp_lazy_normals(
+            &source,
+            &with_normals,
+            &lazy,
+            &idx,
+            &Isometry3::identity(),
+            &cfg
+        )
+        .is_err());
     }
 
     #[test]

@@ -9,7 +9,9 @@ pub mod ransac;
 pub mod rigid_fit;
 pub mod verify;
 
-pub use icp::{icp, IcpCloud, IcpConfig, IcpFactor, IcpIteration, IcpResult, Trim};
+pub use icp::{
+    icp, icp_lazy_normals, IcpCloud, IcpConfig, IcpFactor, IcpIteration, IcpResult, Trim,
+};
 pub use kernel::RobustKernel;
 pub use ransac::{ransac, PoseConstraint, RansacConfig, RansacResult};
 pub use rigid_fit::rigid_fit;

@@ -10,12 +10,14 @@ use crate::geometry::cloud::to_v64;
 use crate::geometry::PointCloud;
 use crate::index::KdIndex;
 use crate::preprocess::normals::{
-    estimate_covariances, estimate_normals, orient, NormalConfig, Orientation,
+    estimate_covariances, estimate_normals, orient, LazyNormals, NormalConfig, Orientation,
 };
 use crate::preprocess::scale::{estimate_spacing, voxel_for_target, ScaleConfig};
 use crate::preprocess::voxel::voxel_downsample;
 use crate::registration::correspondence::{match_features, MatchConfig};
-use crate::registration::icp::{icp, IcpCloud, IcpConfig, IcpFactor, IcpIteration, IcpResult};
+use crate::registration::icp::{
+    icp, icp_lazy_normals, IcpCloud, IcpConfig, IcpFactor, IcpIteration, IcpResult,
+};
 use crate::registration::quality::{covariance, degeneracy, Degeneracy};
 use crate::registration::ransac::{ransac_sided, RansacConfig, RansacResult, SideNormals};
 use crate::registration::trust::{assess_registration, Trust, TrustConfig};
@@ -253,7 +255,8 @@ pub struct IcpLevelTrace {
     /// The level met its step tolerances within its budget.
     pub converged: bool,
     /// Wall time preparing the level (downsampling, normals, kd-tree), milliseconds; 0 for the first
-    /// level, which reuses the global stage's clouds (`downsample_normals`).
+    /// level, which reuses the global stage's clouds (`downsample_normals`). A finer point-to-plane level
+    /// computes its target normals on first use, during its iterations, for the paired points only.
     pub prepare_ms: f64,
     /// One record per iteration ([`IcpIteration`]).
     pub iterations: Vec<IcpIteration>,
@@ -924,10 +927,12 @@ fn icp_pyramid(
             v = finest;
         }
         let level_start = Instant::now();
+        // Finer levels' target normals are computed on first use, for the points ICP pairs.
+        let lazy = level > 0 && lazy_normals_ok(cfg);
         let (sl, tl) = if level == 0 {
             (None, None)
         } else {
-            let (sl, tl) = icp_level_clouds(src, tgt, v, cfg)?;
+            let (sl, tl) = icp_level_clouds(src, tgt, v, cfg, lazy)?;
             (Some(sl), Some(tl))
         };
         let slev = sl.as_ref().unwrap_or(s0);
@@ -939,18 +944,28 @@ fn icp_pyramid(
             sided: cfg.sided || cfg.icp.sided,
             ..cfg.icp.clone()
         };
+        let lazy = lazy.then(|| {
+            LazyNormals::new(
+                &tlev.cloud.points,
+                &tlev.index,
+                NormalConfig {
+                    radius: Some(cfg.normal_radius_voxels * v),
+                    max_neighbors: cfg.normal_max_neighbors,
+                },
+            )
+        });
         let prep_ms = level_start.elapsed().as_secs_f64() * 1e3;
-        let r = icp(
-            &IcpCloud {
-                points: &sub.points,
-                normals: sub.normals.as_deref(),
-                covariances: sub.covariances.as_deref(),
-            },
-            &tlev.icp_cloud(),
-            &tlev.index,
-            &t,
-            &icfg,
-        )?;
+        let source_cloud = IcpCloud {
+            points: &sub.points,
+            normals: sub.normals.as_deref(),
+            covariances: sub.covariances.as_deref(),
+        };
+        let r = match &lazy {
+            Some(l) => {
+                icp_lazy_normals(&source_cloud, &tlev.icp_cloud(), l, &tlev.index, &t, &icfg)?
+            }
+            None => icp(&source_cloud, &tlev.icp_cloud(), &tlev.index, &t, &icfg)?,
+        };
         log::info!(
             "icp level {level} (voxel {v:.4}, {} source / {} target points, prepared in {prep_ms:.1} ms, ran in {:.1} ms): {} iterations, converged {}, fitness {:.3}, overlap {:.3}, rmse {:.5}",
             sub.points.len(),
@@ -981,6 +996,7 @@ fn icp_pyramid(
             &sub.points,
             sub.normals.as_deref(),
             tlev,
+            lazy.as_ref(),
             &t,
             0.5 * v,
             cfg.sided,
@@ -1007,11 +1023,13 @@ fn icp_pyramid(
 
 /// The source and target clouds of an ICP level finer than the global one (`voxel`, cloud units). The
 /// source gets normals (and covariances) only when ICP uses them: GICP, a normal-angle gate, or sides.
+/// With `lazy_normals` the target gets no normals here (ICP computes the ones it needs).
 fn icp_level_clouds(
     src: &PointCloud,
     tgt: &PointCloud,
     voxel: f64,
     cfg: &RegisterConfig,
+    lazy_normals: bool,
 ) -> Result<(Level, Level)> {
     let gicp = cfg.icp.factor == IcpFactor::Gicp;
     let sl = if gicp || cfg.icp.max_normal_angle_deg.is_some() || cfg.sided {
@@ -1024,7 +1042,24 @@ fn icp_level_clouds(
             covariances: None,
         }
     };
-    Ok((sl, prepare_level(tgt, voxel, cfg, false, gicp)?))
+    let tl = if lazy_normals {
+        let mut cloud = voxel_downsample(tgt, voxel)?;
+        cloud.normals = None;
+        Level {
+            index: KdIndex::new(&cloud.points),
+            cloud,
+            covariances: None,
+        }
+    } else {
+        prepare_level(tgt, voxel, cfg, false, gicp)?
+    };
+    Ok((sl, tl))
+}
+
+/// Whether the finer ICP levels can compute their target normals on first use: point-to-plane on
+/// clouds that are not sided (sided normals take their signs from the input's, averaged per voxel).
+fn lazy_normals_ok(cfg: &RegisterConfig) -> bool {
+    cfg.icp.factor == IcpFactor::PointToPlane && !cfg.sided && !cfg.icp.sided
 }
 
 /// A level's source points (with their normals and covariances, when present) after a deterministic
@@ -1135,18 +1170,24 @@ fn find_ambiguity(
 
 /// Fraction of `source` points (mapped by `t`) whose nearest target point has a point-to-plane distance
 /// below `tau` and a normal within 30° of theirs (signed when `sided`); without source normals only the
-/// distance counts.
+/// distance counts. The target's normals are its cloud's, else `lazy`'s.
 fn surface_agreement(
     source: &[[f32; 3]],
     source_normals: Option<&[[f32; 3]]>,
     target: &Level,
+    lazy: Option<&LazyNormals>,
     t: &Isometry3<f64>,
     tau: f64,
     sided: bool,
 ) -> f64 {
-    let Some(tn) = target.cloud.normals.as_deref() else {
-        return f64::NAN;
+    let normal_of = |j: usize| match (target.cloud.normals.as_deref(), lazy) {
+        (Some(n), _) => n[j],
+        (None, Some(l)) => l.get(j),
+        (None, None) => unreachable!("checked below"),
     };
+    if target.cloud.normals.is_none() && lazy.is_none() {
+        return f64::NAN;
+    }
     if source.is_empty() {
         return 0.0;
     }
@@ -1160,7 +1201,7 @@ fn surface_agreement(
             let Some((j, _)) = target.index.nearest_within(&pw, reach2) else {
                 return false;
             };
-            let nt = to_v64(&tn[j]);
+            let nt = to_v64(&normal_of(j));
             if let Some(sn) = source_normals {
                 let c = (t.rotation * to_v64(&sn[*i])).dot(&nt);
                 if (if sided { c } else { c.abs() }) < cos_max {
