@@ -109,7 +109,7 @@ fn seven_scenes_cell_is_recovered() {
         let _ = truth;
         eprintln!(
             "7-Scenes cell ({name}): initial {ri:.2} deg {:.1} mm -> {r:.3} deg, {:.1} mm; fitness {:.3}, overlap {:.3}, points {:?}, {:?}",
-            ti * 1e3, t * 1e3, c.fitness, c.overlap, c.fused_points, c.timings_ms
+            ti * 1e3, t * 1e3, c.fitness.unwrap(), c.overlap.unwrap(), c.fused_points, c.timings_ms
         );
         assert!(r < 1.0 && t < 0.04, "{name}: {r:.3} deg, {:.1} mm", t * 1e3);
     }

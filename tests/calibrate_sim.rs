@@ -58,8 +58,8 @@ fn seeded_cells_at_default_noise() {
         eprintln!(
             "seed {seed}: {r:.4} deg, {:.3} mm (normalised {z:.2}), fitness {:.3}, overlap {:.3}, {:?}",
             t * 1e3,
-            c.fitness,
-            c.overlap,
+            c.fitness.unwrap(),
+            c.overlap.unwrap(),
             c.timings_ms
         );
         worst = (worst.0.max(r), worst.1.max(t), worst.2.max(z));
@@ -102,7 +102,7 @@ fn cells_sharing_30_to_50_percent() {
             shared[0],
             shared[1],
             t * 1e3,
-            c.overlap
+            c.overlap.unwrap()
         );
         let mean = 0.5 * (shared[0] + shared[1]);
         assert!(

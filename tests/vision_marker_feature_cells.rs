@@ -12,7 +12,7 @@ mod common;
 use common::{depthcal, scratch};
 use depthcal::calibration::initializer::{GlobalRegistration, Initializer};
 use depthcal::calibration::robot_to_robot::{
-    fuse_cell, initialize_only, refine_cell, CalibrateConfig,
+    calibrate_request, fuse_cell, refine_cell, CalibrateConfig, CalibrateRequest,
 };
 use depthcal::cell::Cell;
 use depthcal::sim::{SimCell, SimConfig, SimMarkersConfig};
@@ -109,7 +109,11 @@ fn marker_and_feature_methods_meet_their_bounds_on_simulated_cells() {
             assert!(c.initial.sigma_translation_m < bound_m);
         }
         // Without refinement the marker method gives its own estimate unchanged, and fuses nothing.
-        let only = initialize_only(&cell, &marker, &cfg, &mut |_| {}).unwrap();
+        let (only, _) = calibrate_request(CalibrateRequest {
+            refine: false,
+            ..CalibrateRequest::new(&cell, &marker, &cfg)
+        })
+        .unwrap();
         assert!(!only.refined && only.fused_points == [0, 0]);
         assert_eq!(only.transform, only.initial.transform);
     }

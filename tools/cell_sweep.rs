@@ -81,7 +81,7 @@ fn main() {
                 println!(
                     "seed {seed:3}: {r:.4} deg {:.3} mm  normalised {z:.2}  overlap {:.2}  trusted {}  {:.2} s{}",
                     t * 1e3,
-                    c.overlap,
+                    c.overlap.unwrap_or(f64::NAN),
                     c.trust.trusted,
                     t0.elapsed().as_secs_f64(),
                     if r < 0.1 && t < 2e-3 { "" } else { "  OVER" }

@@ -6,7 +6,7 @@ use crate::pool;
 use crate::register::to_json;
 use depthcal::calibration::initializer::UserGuess;
 use depthcal::calibration::robot_to_robot::{
-    calibrate_keeping_clouds, initialize_only_keeping_clouds, robot_pair, CalibrateConfig,
+    calibrate_request, robot_pair, CalibrateConfig, CalibrateRequest,
     Calibration,
 };
 use depthcal::cell::Cell;
@@ -75,19 +75,19 @@ impl PyCalibration {
         PyArray1::from_vec(py, v)
     }
     /// Fraction of the other robot's points with a reference point within the final correspondence
-    /// distance (NaN when not refined).
+    /// distance (None when not refined).
     #[getter]
-    fn fitness(&self) -> f64 {
+    fn fitness(&self) -> Option<f64> {
         self.c.fitness
     }
-    /// RMS distance of those pairs, metres (NaN when not refined).
+    /// RMS distance of those pairs, metres (None when not refined).
     #[getter]
-    fn inlier_rmse(&self) -> f64 {
+    fn inlier_rmse(&self) -> Option<f64> {
         self.c.inlier_rmse
     }
-    /// Overlap estimated by the trimmed ICP (NaN when not refined).
+    /// Overlap estimated by the trimmed ICP (None when not refined).
     #[getter]
-    fn overlap(&self) -> f64 {
+    fn overlap(&self) -> Option<f64> {
         self.c.overlap
     }
     /// ICP met its tolerances.
@@ -287,11 +287,10 @@ pub fn calibrate(
                 transform,
                 source: "init".into(),
             };
-            if refine {
-                calibrate_keeping_clouds(&cell, &guess, &cfg, &mut |_| {})
-            } else {
-                initialize_only_keeping_clouds(&cell, &guess, &cfg, &mut |_| {})
-            }
+            calibrate_request(CalibrateRequest {
+                refine,
+                ..CalibrateRequest::new(&cell, &guess, &cfg)
+            })
         }
         None => calibrate_with_method(&cell, method, &inputs, &cfg, refine, &mut |_| {}),
     })?;

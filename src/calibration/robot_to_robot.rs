@@ -115,7 +115,7 @@ impl Default for CalibrateConfig {
 
 impl CalibrateConfig {
     /// Checks the ranges of every field and nested configuration; the error names the field, e.g.
-    /// `register.icp.max_iterations`. [`calibrate`] and [`initialize_only`] call it first.
+    /// `register.icp.max_iterations`. [`calibrate_request`] calls it first.
     pub fn validate(&self) -> Result<()> {
         self.fuse.validate()?;
         self.register.validate().map_err(|e| e.within("register"))?;
@@ -160,14 +160,15 @@ pub struct Calibration {
     /// Initialiser name.
     pub method: String,
     /// Trimmed robust ICP refined the initial estimate (false with `--no-refine`: then the quality
-    /// figures below are NaN).
+    /// figures below are `None`, `converged` is false and the degeneracy empty).
     pub refined: bool,
-    /// Fraction of the other robot's points with a reference point within the final correspondence distance.
-    pub fitness: f64,
-    /// RMS distance of those pairs (m).
-    pub inlier_rmse: f64,
-    /// Overlap estimated by the trimmed ICP.
-    pub overlap: f64,
+    /// Fraction of the other robot's points with a reference point within the final correspondence
+    /// distance (`None` when not refined).
+    pub fitness: Option<f64>,
+    /// RMS distance of those pairs, metres (`None` when not refined).
+    pub inlier_rmse: Option<f64>,
+    /// Overlap estimated by the trimmed ICP, a fraction (`None` when not refined).
+    pub overlap: Option<f64>,
     /// ICP met its tolerances.
     pub converged: bool,
     /// Degeneracy analysis of the final ICP.
@@ -333,68 +334,92 @@ fn keep_within_range(cloud: &mut FusedCloud, factor: f64) -> usize {
     cloud.retain_points(|i| ranges[i] <= limit)
 }
 
+/// What to calibrate and how: the one entry point [`calibrate_request`] takes it; [`calibrate`] is the
+/// common case.
+pub struct CalibrateRequest<'a> {
+    /// The cell dataset.
+    pub cell: &'a Cell,
+    /// Where the first estimate of `T_base1_base2` comes from.
+    pub initializer: &'a dyn Initializer,
+    /// The settings.
+    pub config: &'a CalibrateConfig,
+    /// Refine the initialiser's estimate with trimmed robust ICP (default true). Without it the result is
+    /// the initialiser's estimate and its 1-σ (`calibrate --no-refine`), and an initialiser that does not
+    /// need the clouds ([`Initializer::needs_clouds`]) fuses none.
+    pub refine: bool,
+    /// Called with a stage description as each stage starts.
+    pub progress: Option<&'a mut dyn FnMut(&str)>,
+}
+
+impl<'a> CalibrateRequest<'a> {
+    /// The cell with `initializer` under `config`, refined, without progress reports.
+    pub fn new(
+        cell: &'a Cell,
+        initializer: &'a dyn Initializer,
+        config: &'a CalibrateConfig,
+    ) -> Self {
+        CalibrateRequest {
+            cell,
+            initializer,
+            config,
+            refine: true,
+            progress: None,
+        }
+    }
+}
+
 /// Calibrates the cell: `T_base1_base2` between the reference robot and the other robot.
 ///
-/// `progress` is called with a stage description as each stage starts.
+/// `progress` is called with a stage description as each stage starts. The same as [`calibrate_request`]
+/// with refinement, without the fused clouds.
 pub fn calibrate(
     cell: &Cell,
     initializer: &dyn Initializer,
     cfg: &CalibrateConfig,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Calibration> {
-    calibrate_keeping_clouds(cell, initializer, cfg, progress).map(|(c, _)| c)
+    let mut req = CalibrateRequest::new(cell, initializer, cfg);
+    req.progress = Some(progress);
+    calibrate_request(req).map(|(c, _)| c)
 }
 
-/// [`calibrate`], also returning the fused clouds it registered (each in its own robot's base frame), e.g.
-/// to write them out.
-pub fn calibrate_keeping_clouds(
-    cell: &Cell,
-    initializer: &dyn Initializer,
-    cfg: &CalibrateConfig,
-    progress: &mut dyn FnMut(&str),
-) -> Result<(Calibration, FusedCell)> {
+/// Calibrates the cell as `req` asks: fuse → initialise → refine (unless `req.refine` is false) → the
+/// checks. Returns the result and the fused clouds it registered (each in its own robot's base frame, e.g.
+/// to write them out; empty when none were needed).
+pub fn calibrate_request(req: CalibrateRequest) -> Result<(Calibration, FusedCell)> {
+    let CalibrateRequest {
+        cell,
+        initializer,
+        config: cfg,
+        refine,
+        progress,
+    } = req;
+    let mut quiet = |_: &str| {};
+    let progress: &mut dyn FnMut(&str) = match progress {
+        Some(p) => p,
+        None => &mut quiet,
+    };
     cfg.validate()?;
-    let (reference, other) = robot_pair(cell)?;
-    progress(&format!(
-        "fusing {} frames of {} and {} of {}",
-        reference.frames.len(),
-        reference.name,
-        other.frames.len(),
-        other.name
-    ));
-    let fused = fuse_cell(cell, cfg)?;
-    let mut c = refine_cell(cell, &fused, initializer, cfg, true, progress)?;
-    c.timings_ms.insert(0, ("fuse".into(), fused.fuse_ms));
-    Ok((c, fused))
-}
-
-/// The initialiser's estimate alone, without fusing or refining (`calibrate --no-refine`): for initialisers
-/// that do not need the clouds ([`Initializer::needs_clouds`]); the others get the fused clouds.
-pub fn initialize_only(
-    cell: &Cell,
-    initializer: &dyn Initializer,
-    cfg: &CalibrateConfig,
-    progress: &mut dyn FnMut(&str),
-) -> Result<Calibration> {
-    initialize_only_keeping_clouds(cell, initializer, cfg, progress).map(|(c, _)| c)
-}
-
-/// [`initialize_only`], also returning the fused clouds (empty when the initialiser does not need them).
-pub fn initialize_only_keeping_clouds(
-    cell: &Cell,
-    initializer: &dyn Initializer,
-    cfg: &CalibrateConfig,
-    progress: &mut dyn FnMut(&str),
-) -> Result<(Calibration, FusedCell)> {
-    cfg.validate()?;
-    let fused = if initializer.needs_clouds() {
-        progress("fusing both robots' frames");
+    let fuse = refine || initializer.needs_clouds();
+    let fused = if fuse {
+        if refine {
+            let (reference, other) = robot_pair(cell)?;
+            progress(&format!(
+                "fusing {} frames of {} and {} of {}",
+                reference.frames.len(),
+                reference.name,
+                other.frames.len(),
+                other.name
+            ));
+        } else {
+            progress("fusing both robots' frames");
+        }
         fuse_cell(cell, cfg)?
     } else {
         FusedCell::without_clouds(cell, cfg)?
     };
-    let mut c = refine_cell(cell, &fused, initializer, cfg, false, progress)?;
-    if initializer.needs_clouds() {
+    let mut c = refine_cell(cell, &fused, initializer, cfg, refine, progress)?;
+    if fuse {
         c.timings_ms.insert(0, ("fuse".into(), fused.fuse_ms));
     }
     Ok((c, fused))
@@ -431,9 +456,9 @@ pub fn refine_cell(
         covariance: initial.covariance(),
         method: initializer.name().to_string(),
         refined: false,
-        fitness: f64::NAN,
-        inlier_rmse: f64::NAN,
-        overlap: f64::NAN,
+        fitness: None,
+        inlier_rmse: None,
+        overlap: None,
         converged: false,
         degeneracy: Degeneracy {
             condition: f64::NAN,
@@ -497,9 +522,9 @@ pub fn refine_cell(
     out.normalised_error =
         truth.and_then(|t| normalised_error(&out.transform, &t, &out.covariance));
     out.refined = true;
-    out.fitness = reg.fitness;
-    out.inlier_rmse = reg.inlier_rmse;
-    out.overlap = reg.overlap;
+    out.fitness = Some(reg.fitness);
+    out.inlier_rmse = Some(reg.inlier_rmse);
+    out.overlap = Some(reg.overlap);
     out.converged = reg.converged;
     out.degeneracy = reg.degeneracy;
     out.error_vs_truth = truth.map(|t| pose_error(&reg.transform, &t));

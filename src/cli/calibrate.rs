@@ -4,8 +4,8 @@ use super::methods::{CalibrateSettings, Method, MethodInputs};
 use super::output::{matrix4_text, spinner};
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
-use depthcal::calibration::handeye::depth::HandEyeDepthConfig;
-use depthcal::calibration::robot_to_robot::{robot_pair, Calibration, FusedCell};
+use depthcal::calibration::handeye::depth::{HandEyeDepthConfig, HandEyeDepthResult};
+use depthcal::calibration::robot_to_robot::{robot_pair, CalibrateConfig, Calibration, FusedCell};
 use depthcal::cell::Cell;
 use depthcal::geometry::pose::{isometry_to_xyzquat, KukaPose};
 use depthcal::geometry::robot_formats::{
@@ -171,9 +171,41 @@ fn write_outputs(
     Ok(())
 }
 
-/// Runs the command.
+/// Runs the command: prepare the inputs → calibrate → the report → the files → print.
 pub fn run(a: Args) -> Result<()> {
     let start = Instant::now();
+    let job = prepare(&a)?;
+    let (c, fused, hand_eyes) = solve(&a, &job)?;
+    for w in &c.warnings {
+        eprintln!("warning: {w}");
+    }
+    let total_ms = start.elapsed().as_secs_f64() * 1e3;
+    let report = report(&a, &job, &c, hand_eyes.as_deref(), total_ms)?;
+    write_files(&a, &job, &c, &fused, &report)?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print_text(&c, &report, &job.frames, total_ms);
+    }
+    super::gate(&c.trust)
+}
+
+/// What calibrate works on, checked before any work.
+struct Job {
+    /// The settings (`--config`, the flags).
+    cfg: CalibrateConfig,
+    /// The cell.
+    cell: Cell,
+    /// The frame ids of the ROS outputs.
+    frames: Frames,
+    /// The initialiser (`guess` with `--init`).
+    method: Method,
+    /// The initialiser's inputs from the command line.
+    inputs: MethodInputs,
+}
+
+/// Reads the settings and the cell and checks the flags, the ground truth and the output directories.
+fn prepare(a: &Args) -> Result<Job> {
     let mut cfg = a.settings.config()?;
     if let Some(d) = &a.detector {
         if a.method != Method::Features {
@@ -184,8 +216,8 @@ pub fn run(a: Args) -> Result<()> {
     let cell = Cell::open(&a.cell)?;
     // A malformed optional ground_truth.json is reported before any work.
     cell.ground_truth()?;
-    let frames = frames(&a, &cell)?;
-    check_output_dir(&a, &cell)?;
+    let frames = frames(a, &cell)?;
+    check_output_dir(a, &cell)?;
     if !a.board_pose.is_empty() && a.method != Method::Checkerboard {
         anyhow::bail!("--board-pose is for --method checkerboard");
     }
@@ -198,54 +230,83 @@ pub fn run(a: Args) -> Result<()> {
         init: a.init.clone(),
         board_pose: a.board_pose.clone(),
     };
+    Ok(Job {
+        cfg,
+        cell,
+        frames,
+        method,
+        inputs,
+    })
+}
+
+/// Calibrates, with a spinner: the result, the fused clouds, and with `--refine-hand-eye` each robot's
+/// hand-eye refinement.
+fn solve(a: &Args, job: &Job) -> Result<(Calibration, FusedCell, Option<Vec<HandEyeDepthResult>>)> {
     let pb = spinner("opening the cell");
     let mut progress = |s: &str| pb.set_message(s.to_string());
-    let (c, fused, hand_eyes) = if a.refine_hand_eye {
-        let (c, f, h) = calibrate_refining_hand_eyes(
-            &cell,
-            method,
-            &inputs,
-            &cfg,
+    let refine = !a.no_refine;
+    let out = if a.refine_hand_eye {
+        calibrate_refining_hand_eyes(
+            &job.cell,
+            job.method,
+            &job.inputs,
+            &job.cfg,
             &HandEyeDepthConfig::default(),
-            !a.no_refine,
+            refine,
             &mut progress,
         )
-        .with_context(|| format!("calibrating {}", a.cell.display()))?;
-        (c, f, Some(h))
+        .map(|(c, f, h)| (c, f, Some(h)))
     } else {
-        let (c, f) =
-            calibrate_with_method(&cell, method, &inputs, &cfg, !a.no_refine, &mut progress)
-                .with_context(|| format!("calibrating {}", a.cell.display()))?;
-        (c, f, None)
+        calibrate_with_method(
+            &job.cell,
+            job.method,
+            &job.inputs,
+            &job.cfg,
+            refine,
+            &mut progress,
+        )
+        .map(|(c, f)| (c, f, None))
     };
     pb.finish_and_clear();
-    for w in &c.warnings {
-        eprintln!("warning: {w}");
-    }
-    let t = &c.transform;
-    let xq = isometry_to_xyzquat(t);
-    let kuka = KukaPose::from_isometry(t);
-    let sd: Vec<f64> = (0..6)
-        .map(|k| c.covariance[(k, k)].max(0.0).sqrt())
-        .collect();
-    let total_ms = start.elapsed().as_secs_f64() * 1e3;
-    let ros2 = ros2_static_tf_command(t, &frames);
-    let ros1 = ros1_static_tf_command(t, &frames);
-    let mut report = CalibrationReport::new(&c, &a.cell.display().to_string(), &frames, total_ms);
-    if let Some(h) = &hand_eyes {
-        let gt = cell.ground_truth()?;
+    out.with_context(|| format!("calibrating {}", a.cell.display()))
+}
+
+/// The report `--json` prints and `--output` writes, with the hand-eye refinements against the cell's
+/// ground truth when it has one.
+fn report(
+    a: &Args,
+    job: &Job,
+    c: &Calibration,
+    hand_eyes: Option<&[HandEyeDepthResult]>,
+    total_ms: f64,
+) -> Result<CalibrationReport> {
+    let cell_name = a.cell.display().to_string();
+    let mut report = CalibrationReport::new(c, &cell_name, &job.frames, total_ms);
+    if let Some(h) = hand_eyes {
+        let gt = job.cell.ground_truth()?;
         report.hand_eye_refinement = Some(
             h.iter()
                 .map(|r| {
                     let truth = gt.as_ref().and_then(|g| true_hand_eye(g, &r.robot));
-                    HandEyeDepthReport::new(r, &a.cell.display().to_string(), truth.as_ref())
+                    HandEyeDepthReport::new(r, &cell_name, truth.as_ref())
                 })
                 .collect(),
         );
     }
+    Ok(report)
+}
+
+/// `--output DIR` (only for a trusted result) and `--report DIR` (always).
+fn write_files(
+    a: &Args,
+    job: &Job,
+    c: &Calibration,
+    fused: &FusedCell,
+    report: &CalibrationReport,
+) -> Result<()> {
     if let Some(dir) = &a.output {
         if c.trust.trusted {
-            write_outputs(dir, &c, &fused, &frames, &report)?;
+            write_outputs(dir, c, fused, &job.frames, report)?;
             eprintln!("wrote {}", dir.display());
         } else {
             eprintln!(
@@ -256,79 +317,21 @@ pub fn run(a: Args) -> Result<()> {
     }
     if let Some(dir) = &a.report {
         super::visual::write(dir, c.trust.trusted, || {
-            depthcal::viz::calibration_report(&cell, &c, &fused, &frames)
+            depthcal::viz::calibration_report(&job.cell, c, fused, &job.frames)
         })?;
     }
-    if a.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
-        return super::gate(&c.trust);
-    }
-    println!(
-        "T_base1_base2: {} base -> {} base ({} frames / {} frames, method {})",
-        c.other, c.reference, c.frames[1], c.frames[0], c.method
-    );
-    println!("{}", matrix4_text(t));
-    println!(
-        "xyz (m)         {:.6} {:.6} {:.6}   quaternion (x y z w) {:.8} {:.8} {:.8} {:.8}",
-        xq[0], xq[1], xq[2], xq[3], xq[4], xq[5], xq[6]
-    );
-    println!(
-        "KUKA XYZ-ABC    X {:.3} Y {:.3} Z {:.3} mm   A {:.4} B {:.4} C {:.4} deg",
-        kuka.x_mm, kuka.y_mm, kuka.z_mm, kuka.a_deg, kuka.b_deg, kuka.c_deg
-    );
-    println!("ROS 2           {ros2}");
-    println!("ROS 1           {ros1}");
-    println!(
-        "1-sigma         rotation {:.4} {:.4} {:.4} deg, translation {:.3} {:.3} {:.3} mm",
-        sd[0].to_degrees(),
-        sd[1].to_degrees(),
-        sd[2].to_degrees(),
-        sd[3] * 1e3,
-        sd[4] * 1e3,
-        sd[5] * 1e3
-    );
-    if c.refined {
-        println!(
-            "quality         fitness {:.3}, inlier RMSE {:.2} mm, overlap {:.3}, converged {}, degenerate {}",
-            c.fitness,
-            c.inlier_rmse * 1e3,
-            c.overlap,
-            c.converged,
-            c.degeneracy.is_degenerate()
-        );
-    } else {
-        println!(
-            "quality         not refined (--no-refine): the initialiser's estimate and its 1-sigma"
-        );
-    }
-    println!(
-        "priors          {}",
-        if c.priors_used.is_empty() {
-            "none".to_string()
-        } else {
-            c.priors_used.join(", ")
-        }
-    );
+    Ok(())
+}
+
+/// The human-readable result: the transform in every robot format, its 1-σ, quality, the initial estimate,
+/// the errors against a ground truth, timings, and whether it is trusted and why.
+fn print_text(c: &Calibration, report: &CalibrationReport, frames: &Frames, total_ms: f64) {
+    let t = &c.transform;
+    let xq = isometry_to_xyzquat(t);
+    print_transform(c, frames);
+    print_quality(c);
     for h in report.hand_eye_refinement.iter().flatten() {
-        println!(
-            "hand-eye {:<7} refined from depth: moved {:.3} deg / {:.2} mm, residual median {:.2} -> {:.2} mm{}{}",
-            h.robot,
-            h.change_size.rotation_deg,
-            h.change_size.translation_m * 1e3,
-            h.median_residual_before_m * 1e3,
-            h.median_residual_after_m * 1e3,
-            h.error_vs_truth
-                .as_ref()
-                .map(|e| format!(
-                    "; vs truth {:.3} deg / {:.2} mm -> {:.3} deg / {:.2} mm",
-                    e.before.rotation_deg,
-                    e.before.translation_m * 1e3,
-                    e.after.rotation_deg,
-                    e.after.translation_m * 1e3
-                ))
-                .unwrap_or_default(),
-            if h.trusted { "" } else { " (NOT trusted)" }
-        );
+        print_hand_eye(h);
     }
     println!("initial         {}", c.initial.detail);
     if c.refined {
@@ -350,6 +353,99 @@ pub fn run(a: Args) -> Result<()> {
             c.initial.sigma_translation_m * 1e3
         );
     }
+    print_truth(c);
+    let times: Vec<String> = c
+        .timings_ms
+        .iter()
+        .map(|(k, v)| format!("{k} {v:.0}"))
+        .collect();
+    println!("timings (ms)    {}  total {total_ms:.0}", times.join(", "));
+    print_checks(c);
+}
+
+/// The transform: matrix, xyz + quaternion, KUKA, the ROS commands and its 1-σ.
+fn print_transform(c: &Calibration, frames: &Frames) {
+    let t = &c.transform;
+    let xq = isometry_to_xyzquat(t);
+    let kuka = KukaPose::from_isometry(t);
+    let sd: Vec<f64> = (0..6)
+        .map(|k| c.covariance[(k, k)].max(0.0).sqrt())
+        .collect();
+    println!(
+        "T_base1_base2: {} base -> {} base ({} frames / {} frames, method {})",
+        c.other, c.reference, c.frames[1], c.frames[0], c.method
+    );
+    println!("{}", matrix4_text(t));
+    println!(
+        "xyz (m)         {:.6} {:.6} {:.6}   quaternion (x y z w) {:.8} {:.8} {:.8} {:.8}",
+        xq[0], xq[1], xq[2], xq[3], xq[4], xq[5], xq[6]
+    );
+    println!(
+        "KUKA XYZ-ABC    X {:.3} Y {:.3} Z {:.3} mm   A {:.4} B {:.4} C {:.4} deg",
+        kuka.x_mm, kuka.y_mm, kuka.z_mm, kuka.a_deg, kuka.b_deg, kuka.c_deg
+    );
+    println!("ROS 2           {}", ros2_static_tf_command(t, frames));
+    println!("ROS 1           {}", ros1_static_tf_command(t, frames));
+    println!(
+        "1-sigma         rotation {:.4} {:.4} {:.4} deg, translation {:.3} {:.3} {:.3} mm",
+        sd[0].to_degrees(),
+        sd[1].to_degrees(),
+        sd[2].to_degrees(),
+        sd[3] * 1e3,
+        sd[4] * 1e3,
+        sd[5] * 1e3
+    );
+}
+
+/// The refinement's quality figures and the priors used.
+fn print_quality(c: &Calibration) {
+    if let (Some(fitness), Some(rmse), Some(overlap)) = (c.fitness, c.inlier_rmse, c.overlap) {
+        println!(
+            "quality         fitness {fitness:.3}, inlier RMSE {:.2} mm, overlap {overlap:.3}, converged {}, degenerate {}",
+            rmse * 1e3,
+            c.converged,
+            c.degeneracy.is_degenerate()
+        );
+    } else {
+        println!(
+            "quality         not refined (--no-refine): the initialiser's estimate and its 1-sigma"
+        );
+    }
+    println!(
+        "priors          {}",
+        if c.priors_used.is_empty() {
+            "none".to_string()
+        } else {
+            c.priors_used.join(", ")
+        }
+    );
+}
+
+/// One robot's hand-eye refinement from depth (`--refine-hand-eye`).
+fn print_hand_eye(h: &HandEyeDepthReport) {
+    println!(
+        "hand-eye {:<7} refined from depth: moved {:.3} deg / {:.2} mm, residual median {:.2} -> {:.2} mm{}{}",
+        h.robot,
+        h.change_size.rotation_deg,
+        h.change_size.translation_m * 1e3,
+        h.median_residual_before_m * 1e3,
+        h.median_residual_after_m * 1e3,
+        h.error_vs_truth
+            .as_ref()
+            .map(|e| format!(
+                "; vs truth {:.3} deg / {:.2} mm -> {:.3} deg / {:.2} mm",
+                e.before.rotation_deg,
+                e.before.translation_m * 1e3,
+                e.after.rotation_deg,
+                e.after.translation_m * 1e3
+            ))
+            .unwrap_or_default(),
+        if h.trusted { "" } else { " (NOT trusted)" }
+    );
+}
+
+/// The errors against the cell's ground truth, when it has one, and the normalised error.
+fn print_truth(c: &Calibration) {
     match (c.error_vs_truth, c.initial_error_vs_truth) {
         (Some((r, tr)), Some((ri, ti))) if c.refined => println!(
             "vs ground truth initial {ri:.3} deg / {:.2} mm  ->  refined {r:.4} deg / {:.3} mm",
@@ -368,12 +464,10 @@ pub fn run(a: Args) -> Result<()> {
             n.rotation, n.translation, n.pose
         );
     }
-    let times: Vec<String> = c
-        .timings_ms
-        .iter()
-        .map(|(k, v)| format!("{k} {v:.0}"))
-        .collect();
-    println!("timings (ms)    {}  total {total_ms:.0}", times.join(", "));
+}
+
+/// The independent checks (free space, ambiguity) and the trust verdict with its reasons.
+fn print_checks(c: &Calibration) {
     if let Some(f) = &c.free_space {
         println!(
             "free space      {:.1}% of the surfaces violate the other robot's views (own frames {:.1}%, margin {:.0} mm)",
@@ -402,5 +496,4 @@ pub fn run(a: Args) -> Result<()> {
             println!("  try           {s}");
         }
     }
-    super::gate(&c.trust)
 }

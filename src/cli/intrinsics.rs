@@ -58,6 +58,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 /// Runs `depthcal intrinsics`.
 #[cfg(feature = "vision")]
 pub fn run(a: Args) -> anyhow::Result<()> {
+    use anyhow::Context;
     use depthcal::vision::intrinsics::{calibrate_intrinsics, IntrinsicsConfig};
     let board = a.board.board()?;
     if let Some(out) = &a.output {
@@ -80,6 +81,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         cfg.charuco.subpix_half_window_px = a.subpix_window;
     }
     cfg.corners.sector_based_fallback |= a.sector_based;
+    cfg.validate().with_context(|| {
+        super::output::config_source(a.config.as_deref(), "the intrinsics configuration")
+    })?;
     let c = calibrate_intrinsics(&a.images, &board, &cfg)?;
     for (name, why) in &c.rejected {
         eprintln!("warning: {name} rejected: {why}");

@@ -97,6 +97,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if let Some(d) = &a.detector {
         cfg.detector = d.parse()?;
     }
+    cfg.validate().with_context(|| {
+        super::output::config_source(a.config.as_deref(), "the marker configuration")
+    })?;
     // Every image must exist before anything is written.
     for p in &a.images {
         if !p.is_file() {

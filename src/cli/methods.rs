@@ -1,7 +1,7 @@
 //! The settings `calibrate` and `compare` share (the methods themselves are the library's
 //! `depthcal::methods`).
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use depthcal::calibration::robot_to_robot::CalibrateConfig;
 use std::path::PathBuf;
 
@@ -28,7 +28,9 @@ impl CalibrateSettings {
             super::output::read_config(self.config.as_deref(), "calibrate configuration")?;
         cfg.seed = self.seed;
         cfg.use_priors = !self.no_priors;
-        cfg.validate()?;
+        cfg.validate().with_context(|| {
+            super::output::config_source(self.config.as_deref(), "the calibrate configuration")
+        })?;
         Ok(cfg)
     }
 

@@ -23,6 +23,15 @@ pub fn read_config<T: serde::de::DeserializeOwned + serde::Serialize + Default>(
     config_from_json(&text).with_context(|| format!("{}: not a valid {what}", p.display()))
 }
 
+/// Names where a configuration came from, for an error of its `validate()`: the `--config` file when
+/// there is one (its values with the command's flags applied), else the command's flags.
+pub fn config_source(path: Option<&std::path::Path>, what: &str) -> String {
+    match path {
+        Some(p) => format!("{}: {what} (with the flags applied)", p.display()),
+        None => format!("{what} from the flags"),
+    }
+}
+
 /// `T` from a partial JSON configuration merged over the serialised `T::default()`
 /// ([`depthcal::config_json::config_from_json`], shared with the Python package's `config=`).
 pub fn config_from_json<T: serde::de::DeserializeOwned + serde::Serialize + Default>(

@@ -5,7 +5,7 @@ use super::output::{matrix4_text, spinner};
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
 use depthcal::io::{read_cloud, read_matrix_file, write_cloud};
-use depthcal::registration::{register_with_progress, RegisterConfig};
+use depthcal::registration::{register_with_progress, RegisterConfig, Registration};
 use depthcal::report::{RegistrationInputs, RegistrationReport};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -44,41 +44,11 @@ pub struct Args {
     truth: Option<PathBuf>,
 }
 
-/// Runs the command.
+/// Runs the command: settings and checks → read → register (writing `--output`) → `--report` → print.
 pub fn run(a: Args) -> Result<()> {
     let start = Instant::now();
-    let mut cfg: RegisterConfig =
-        super::output::read_config(a.config.as_deref(), "registration configuration")?;
-    cfg.seed = a.seed;
-    if a.voxel.is_some() {
-        cfg.voxel = a.voxel;
-    }
-    if let Some(v) = cfg.voxel {
-        if !(v.is_finite() && v > 0.0) {
-            anyhow::bail!("--voxel {v}: the voxel size must be a positive number (cloud units)");
-        }
-    }
-    cfg.validate()?;
-    // Everything checkable before any work: the output (not an input, its directory, its extension).
-    let mut inputs = Inputs::default();
-    inputs.add("SOURCE", &a.source);
-    inputs.add("TARGET", &a.target);
-    inputs.add_opt("--init", a.init.as_ref());
-    inputs.add_opt("--truth", a.truth.as_ref());
-    inputs.add_opt("--config", a.config.as_ref());
-    if let Some(out) = &a.output {
-        check_output_file("--output", out, &["ply", "xyz", "txt"])?;
-        inputs.check_output("--output", out)?;
-    }
-    if let Some(dir) = &a.report {
-        super::guard::check_owned_dir(
-            &inputs,
-            "--report",
-            dir,
-            &depthcal::viz::REPORT_FILES,
-            "register",
-        )?;
-    }
+    let cfg = settings(&a)?;
+    check_outputs(&a)?;
     let init = a.init.as_ref().map(read_matrix_file).transpose()?;
     let truth = a.truth.as_ref().map(read_matrix_file).transpose()?;
     let pb = spinner("reading clouds");
@@ -134,7 +104,6 @@ pub fn run(a: Args) -> Result<()> {
             )
         })?;
     }
-    let error = truth.map(|t| depthcal::geometry::transform::pose_error(&reg.transform, &t));
     if a.json {
         let report = RegistrationReport::new(
             &reg,
@@ -149,65 +118,114 @@ pub fn run(a: Args) -> Result<()> {
         );
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
-        println!("{} -> {}", a.source.display(), a.target.display());
-        println!(
-            "transform (maps source into target):\n{}",
-            matrix4_text(&reg.transform)
-        );
-        let q = reg.transform.rotation;
-        let tr = reg.transform.translation.vector;
-        println!(
-            "xyz {:.6} {:.6} {:.6}  quaternion (x y z w) {:.6} {:.6} {:.6} {:.6}  rotation {:.3} deg",
-            tr.x,
-            tr.y,
-            tr.z,
-            q.i,
-            q.j,
-            q.k,
-            q.w,
-            q.angle().to_degrees()
-        );
-        println!(
-            "fitness {:.3}  inlier RMSE {:.5}  overlap {:.3}  converged {}  ICP iterations {}",
-            reg.fitness, reg.inlier_rmse, reg.overlap, reg.converged, reg.iterations
-        );
-        let sd: Vec<String> = (0..6)
-            .map(|k| format!("{:.2e}", reg.covariance[(k, k)].max(0.0).sqrt()))
-            .collect();
-        println!("1-sigma [rx ry rz (rad), tx ty tz]: {}", sd.join(" "));
-        if let Some(g) = &reg.global {
-            println!(
-                "global stage: {} correspondences, {} inliers, {} RANSAC samples, voxel {:.4}",
-                g.correspondences, g.inliers, g.iterations, reg.voxel
-            );
-        }
-        if let Some((r, t)) = error {
-            println!(
-                "error against the truth: rotation {r:.4} deg, translation {t:.6} (cloud units)"
-            );
-        }
-        let times: Vec<String> = reg
-            .timings_ms
-            .iter()
-            .map(|(k, v)| format!("{k} {v:.1}"))
-            .collect();
-        println!("timings (ms): {}  total {total_ms:.1}", times.join(", "));
-        println!(
-            "surface agreement {:.3}  trusted {}",
-            reg.surface_agreement, reg.trust.trusted
-        );
-        if let Some(x) = &reg.ambiguity {
-            println!(
-                "ambiguous: runner-up {:.2} deg / {:.4} away scores {:.0}% of the best:\n{}",
-                x.rotation_deg,
-                x.translation,
-                x.score_ratio * 1e2,
-                matrix4_text(&x.runner_up)
-            );
-        }
-        for s in &reg.trust.suggestions {
-            println!("try: {s}");
-        }
+        let error = truth.map(|t| depthcal::geometry::transform::pose_error(&reg.transform, &t));
+        print_text(&a, &reg, error, total_ms);
     }
     super::gate(&reg.trust)
+}
+
+/// The configuration: the `--config` file (or the defaults) with the flags applied, checked.
+fn settings(a: &Args) -> Result<RegisterConfig> {
+    let mut cfg: RegisterConfig =
+        super::output::read_config(a.config.as_deref(), "registration configuration")?;
+    cfg.seed = a.seed;
+    if a.voxel.is_some() {
+        cfg.voxel = a.voxel;
+    }
+    if let Some(v) = cfg.voxel {
+        if !(v.is_finite() && v > 0.0) {
+            anyhow::bail!("--voxel {v}: the voxel size must be a positive number (cloud units)");
+        }
+    }
+    cfg.validate().with_context(|| {
+        super::output::config_source(a.config.as_deref(), "the registration configuration")
+    })?;
+    Ok(cfg)
+}
+
+/// Everything checkable before any work: `--output` (not an input, its directory, its extension) and
+/// `--report` (a directory register may write into).
+fn check_outputs(a: &Args) -> Result<()> {
+    let mut inputs = Inputs::default();
+    inputs.add("SOURCE", &a.source);
+    inputs.add("TARGET", &a.target);
+    inputs.add_opt("--init", a.init.as_ref());
+    inputs.add_opt("--truth", a.truth.as_ref());
+    inputs.add_opt("--config", a.config.as_ref());
+    if let Some(out) = &a.output {
+        check_output_file("--output", out, &["ply", "xyz", "txt"])?;
+        inputs.check_output("--output", out)?;
+    }
+    if let Some(dir) = &a.report {
+        super::guard::check_owned_dir(
+            &inputs,
+            "--report",
+            dir,
+            &depthcal::viz::REPORT_FILES,
+            "register",
+        )?;
+    }
+    Ok(())
+}
+
+/// The human-readable result: the transform, quality, 1-σ, the global stage, the error against `--truth`,
+/// timings, and whether it is trusted.
+fn print_text(a: &Args, reg: &Registration, error: Option<(f64, f64)>, total_ms: f64) {
+    println!("{} -> {}", a.source.display(), a.target.display());
+    println!(
+        "transform (maps source into target):\n{}",
+        matrix4_text(&reg.transform)
+    );
+    let q = reg.transform.rotation;
+    let tr = reg.transform.translation.vector;
+    println!(
+        "xyz {:.6} {:.6} {:.6}  quaternion (x y z w) {:.6} {:.6} {:.6} {:.6}  rotation {:.3} deg",
+        tr.x,
+        tr.y,
+        tr.z,
+        q.i,
+        q.j,
+        q.k,
+        q.w,
+        q.angle().to_degrees()
+    );
+    println!(
+        "fitness {:.3}  inlier RMSE {:.5}  overlap {:.3}  converged {}  ICP iterations {}",
+        reg.fitness, reg.inlier_rmse, reg.overlap, reg.converged, reg.iterations
+    );
+    let sd: Vec<String> = (0..6)
+        .map(|k| format!("{:.2e}", reg.covariance[(k, k)].max(0.0).sqrt()))
+        .collect();
+    println!("1-sigma [rx ry rz (rad), tx ty tz]: {}", sd.join(" "));
+    if let Some(g) = &reg.global {
+        println!(
+            "global stage: {} correspondences, {} inliers, {} RANSAC samples, voxel {:.4}",
+            g.correspondences, g.inliers, g.iterations, reg.voxel
+        );
+    }
+    if let Some((r, t)) = error {
+        println!("error against the truth: rotation {r:.4} deg, translation {t:.6} (cloud units)");
+    }
+    let times: Vec<String> = reg
+        .timings_ms
+        .iter()
+        .map(|(k, v)| format!("{k} {v:.1}"))
+        .collect();
+    println!("timings (ms): {}  total {total_ms:.1}", times.join(", "));
+    println!(
+        "surface agreement {:.3}  trusted {}",
+        reg.surface_agreement, reg.trust.trusted
+    );
+    if let Some(x) = &reg.ambiguity {
+        println!(
+            "ambiguous: runner-up {:.2} deg / {:.4} away scores {:.0}% of the best:\n{}",
+            x.rotation_deg,
+            x.translation,
+            x.score_ratio * 1e2,
+            matrix4_text(&x.runner_up)
+        );
+    }
+    for s in &reg.trust.suggestions {
+        println!("try: {s}");
+    }
 }

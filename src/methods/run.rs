@@ -6,8 +6,8 @@ use crate::calibration::handeye::depth::{
     refine_hand_eye_from_depth, HandEyeDepthConfig, HandEyeDepthResult,
 };
 use crate::calibration::robot_to_robot::{
-    calibrate_keeping_clouds, fuse_cell, initialize_only_keeping_clouds, refine_cell,
-    CalibrateConfig, Calibration, FusedCell,
+    calibrate_request, fuse_cell, refine_cell, CalibrateConfig, CalibrateRequest, Calibration,
+    FusedCell,
 };
 use crate::cell::Cell;
 use crate::error::Result;
@@ -27,11 +27,11 @@ pub fn calibrate_with_method(
     progress: &mut dyn FnMut(&str),
 ) -> Result<(Calibration, FusedCell)> {
     let (init, found_ms, warnings) = build(method, cell, inputs, cfg)?;
-    let (mut c, fused) = if refine {
-        calibrate_keeping_clouds(cell, init.as_ref(), cfg, progress)?
-    } else {
-        initialize_only_keeping_clouds(cell, init.as_ref(), cfg, progress)?
-    };
+    let (mut c, fused) = calibrate_request(CalibrateRequest {
+        refine,
+        progress: Some(progress),
+        ..CalibrateRequest::new(cell, init.as_ref(), cfg)
+    })?;
     if found_ms > 0.0 {
         // The image targets are found before the clouds are fused.
         let key = match method {

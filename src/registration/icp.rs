@@ -391,95 +391,126 @@ impl TargetNormals<'_> {
     }
 }
 
-/// [`icp`] and [`icp_lazy_normals`].
-fn icp_with(
-    source: &IcpCloud,
-    target: &IcpCloud,
-    lazy: Option<&LazyNormals>,
-    target_index: &KdIndex,
-    init: &Isometry3<f64>,
-    cfg: &IcpConfig,
-) -> Result<IcpResult> {
-    if cfg.max_correspondence_distance.is_nan()
-        || cfg.max_correspondence_distance <= 0.0
-        || cfg.translation_tolerance.is_nan()
-        || cfg.translation_tolerance <= 0.0
-    {
-        return Err(Error::Config {
-            field: "icp.max_correspondence_distance / icp.translation_tolerance".into(),
-            msg: "must be positive".into(),
-        });
-    }
-    if source.points.len() < 3 || target.points.len() < 3 {
-        return Err(Error::InvalidInput(format!(
-            "ICP needs at least 3 points in each cloud (source {}, target {})",
-            source.points.len(),
-            target.points.len()
-        )));
-    }
-    let lengths_ok = |c: &IcpCloud| {
-        c.normals.is_none_or(|n| n.len() == c.points.len())
-            && c.covariances.is_none_or(|v| v.len() == c.points.len())
-    };
-    if !lengths_ok(source) || !lengths_ok(target) {
-        return Err(Error::InvalidInput(
-            "ICP needs one normal / covariance per point".into(),
-        ));
-    }
-    let normals: Option<TargetNormals> = match (target.normals, lazy) {
-        (Some(n), _) => Some(TargetNormals::Slice(n)),
-        (None, Some(l)) => Some(TargetNormals::Lazy(l)),
-        (None, None) => None,
-    };
-    let covariances = match cfg.factor {
-        IcpFactor::PointToPlane => {
-            if normals.is_none() {
-                return Err(Error::InvalidInput(
-                    "point-to-plane ICP needs target normals".into(),
-                ));
-            }
-            None
+/// Cos of the largest angle allowed between a pair's normals, with both clouds' normals (`sided`: opposite
+/// sides never pair; otherwise sign-free).
+type NormalGate<'a> = (f32, &'a [[f32; 3]], TargetNormals<'a>);
+
+/// Source and target covariances, packed upper triangles (cloud units²).
+type CovariancePair<'a> = (&'a [[f32; 6]], &'a [[f32; 6]]);
+
+/// One ICP problem, checked: the clouds, the factor's data and the pairing rules. Each iteration is
+/// [`Self::correspondences`] → trimming → [`Self::rows`] → the normal equations → a Gauss-Newton step.
+struct Problem<'a> {
+    /// Source points (moved by the estimate).
+    source: &'a [[f32; 3]],
+    /// Target points.
+    target: &'a [[f32; 3]],
+    /// The target's index.
+    index: &'a KdIndex,
+    /// The target's normals, when it has (or computes) them.
+    normals: Option<TargetNormals<'a>>,
+    /// Source and target covariances (GICP only).
+    covariances: Option<CovariancePair<'a>>,
+    /// The normal-compatibility gate, when one applies.
+    gate: Option<NormalGate<'a>>,
+    /// The settings.
+    cfg: &'a IcpConfig,
+    /// Squared correspondence distance limit, cloud units².
+    maxd2: f32,
+}
+
+impl<'a> Problem<'a> {
+    /// Checks the settings and the clouds against the factor and gathers what the iterations need.
+    fn new(
+        source: &'a IcpCloud,
+        target: &'a IcpCloud,
+        lazy: Option<&'a LazyNormals>,
+        index: &'a KdIndex,
+        cfg: &'a IcpConfig,
+    ) -> Result<Self> {
+        if cfg.max_correspondence_distance.is_nan()
+            || cfg.max_correspondence_distance <= 0.0
+            || cfg.translation_tolerance.is_nan()
+            || cfg.translation_tolerance <= 0.0
+        {
+            return Err(Error::Config {
+                field: "icp.max_correspondence_distance / icp.translation_tolerance".into(),
+                msg: "must be positive".into(),
+            });
         }
-        IcpFactor::PointToPoint => None,
-        IcpFactor::Gicp => match (source.covariances, target.covariances) {
-            (Some(s), Some(t)) => Some((s, t)),
-            _ => {
-                return Err(Error::InvalidInput(
-                    "GICP needs source and target covariances".into(),
-                ))
+        if source.points.len() < 3 || target.points.len() < 3 {
+            return Err(Error::InvalidInput(format!(
+                "ICP needs at least 3 points in each cloud (source {}, target {})",
+                source.points.len(),
+                target.points.len()
+            )));
+        }
+        let lengths_ok = |c: &IcpCloud| {
+            c.normals.is_none_or(|n| n.len() == c.points.len())
+                && c.covariances.is_none_or(|v| v.len() == c.points.len())
+        };
+        if !lengths_ok(source) || !lengths_ok(target) {
+            return Err(Error::InvalidInput(
+                "ICP needs one normal / covariance per point".into(),
+            ));
+        }
+        let normals: Option<TargetNormals> = match (target.normals, lazy) {
+            (Some(n), _) => Some(TargetNormals::Slice(n)),
+            (None, Some(l)) => Some(TargetNormals::Lazy(l)),
+            (None, None) => None,
+        };
+        let covariances = match cfg.factor {
+            IcpFactor::PointToPlane => {
+                if normals.is_none() {
+                    return Err(Error::InvalidInput(
+                        "point-to-plane ICP needs target normals".into(),
+                    ));
+                }
+                None
             }
-        },
-    };
-    let (source_pts, target_pts) = (source.points, target.points);
-    // Normal compatibility: cos of the largest angle allowed, with both clouds' normals; sign-free unless
-    // the clouds are sided, where opposite sides never pair.
-    let sided = cfg.sided;
-    let compat = match (cfg.max_normal_angle_deg, source.normals, normals) {
-        (Some(a), Some(ns), Some(nt)) => Some((a.to_radians().cos() as f32, ns, nt)),
-        (None, Some(ns), Some(nt)) if sided => Some((0.0, ns, nt)),
-        _ => None,
-    };
-    let maxd2 = (cfg.max_correspondence_distance * cfg.max_correspondence_distance) as f32;
-    let mut t = *init;
-    let mut converged = false;
-    let mut iterations = 0;
-    let mut last = None;
-    let mut history = Vec::new();
-    for it in 0..=cfg.max_iterations {
-        let it_start = std::time::Instant::now();
-        // 1. Correspondences.
+            IcpFactor::PointToPoint => None,
+            IcpFactor::Gicp => match (source.covariances, target.covariances) {
+                (Some(s), Some(t)) => Some((s, t)),
+                _ => {
+                    return Err(Error::InvalidInput(
+                        "GICP needs source and target covariances".into(),
+                    ))
+                }
+            },
+        };
+        let gate = match (cfg.max_normal_angle_deg, source.normals, normals) {
+            (Some(a), Some(ns), Some(nt)) => Some((a.to_radians().cos() as f32, ns, nt)),
+            (None, Some(ns), Some(nt)) if cfg.sided => Some((0.0, ns, nt)),
+            _ => None,
+        };
+        Ok(Problem {
+            source: source.points,
+            target: target.points,
+            index,
+            normals,
+            covariances,
+            gate,
+            cfg,
+            maxd2: (cfg.max_correspondence_distance * cfg.max_correspondence_distance) as f32,
+        })
+    }
+
+    /// Every source point's nearest target point within the distance limit under `t` that passes the
+    /// normal gate, in source order.
+    fn correspondences(&self, t: &Isometry3<f64>) -> Vec<Pair> {
         let rot32: [[f32; 3]; 3] = {
             let m = t.rotation.to_rotation_matrix();
             std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)] as f32))
         };
-        let mut pairs: Vec<Pair> = source_pts
+        let (maxd2, sided) = (self.maxd2, self.cfg.sided);
+        self.source
             .par_iter()
             .enumerate()
             .filter_map(|(i, p)| {
-                let pw = transform_point(&t, p);
+                let pw = transform_point(t, p);
                 // Pairs beyond the distance limit are never used: a bounded search skips them early.
-                let (j, d2) = target_index.nearest_within(&pw, maxd2)?;
-                if let Some((cmin, ns, nt)) = compat {
+                let (j, d2) = self.index.nearest_within(&pw, maxd2)?;
+                if let Some((cmin, ns, nt)) = self.gate {
                     let n = ns[i];
                     let m = &rot32;
                     let nt = nt.get(j);
@@ -497,50 +528,41 @@ fn icp_with(
                     pw,
                 })
             })
-            .collect();
-        if pairs.len() < 6 {
-            return Err(Error::Failed(format!(
-                "ICP lost the overlap: {} of {} source points have a target point within {:.4}",
-                pairs.len(),
-                source_pts.len(),
-                cfg.max_correspondence_distance
-            )));
-        }
-        // 2. Trimming.
-        pairs.par_sort_unstable_by(|a, b| a.d2.total_cmp(&b.d2).then(a.i.cmp(&b.i)));
-        let d2s: Vec<f32> = pairs.iter().map(|p| p.d2).collect();
-        let keep = trimmed_count(&d2s, source_pts.len(), cfg.trim);
-        let fitness = pairs.len() as f64 / source_pts.len() as f64;
-        let rmse = (d2s.iter().map(|&d| d as f64).sum::<f64>() / d2s.len() as f64).sqrt();
-        let kept = &pairs[..keep];
-        // 3. Residual rows of each pair: one for point-to-plane, three for point-to-point and GICP.
-        let plane_rows = |pr: &Pair| -> PairRows {
-            let ns = normals.expect("checked");
-            let r = row(
-                &pr.pw,
-                &target_pts[pr.j as usize],
-                &to_v64(&ns.get(pr.j as usize)),
-            );
-            let z = (Vector6::zeros(), 0.0);
-            ([r, z, z], 1, r.1.abs())
-        };
-        let rows: Vec<PairRows> = match cfg.factor {
-            IcpFactor::PointToPlane => kept.par_iter().map(plane_rows).collect(),
+            .collect()
+    }
+
+    /// The point-to-plane row of a pair (the target point's normal).
+    fn plane_rows(&self, pr: &Pair) -> PairRows {
+        let ns = self.normals.expect("checked");
+        let r = row(
+            &pr.pw,
+            &self.target[pr.j as usize],
+            &to_v64(&ns.get(pr.j as usize)),
+        );
+        let z = (Vector6::zeros(), 0.0);
+        ([r, z, z], 1, r.1.abs())
+    }
+
+    /// The residual rows of the kept pairs under `t`: one for point-to-plane, three for point-to-point
+    /// and GICP (whitened by the pair's combined covariance).
+    fn rows(&self, kept: &[Pair], t: &Isometry3<f64>) -> Vec<PairRows> {
+        match self.cfg.factor {
+            IcpFactor::PointToPlane => kept.par_iter().map(|p| self.plane_rows(p)).collect(),
             IcpFactor::PointToPoint => kept
                 .par_iter()
                 .map(|pr| {
-                    let q = &target_pts[pr.j as usize];
+                    let q = &self.target[pr.j as usize];
                     let r = [Vector3::x(), Vector3::y(), Vector3::z()].map(|u| row(&pr.pw, q, &u));
                     (r, 3, (pr.d2 as f64).sqrt())
                 })
                 .collect(),
             IcpFactor::Gicp => {
-                let (cs, ct) = covariances.expect("checked");
+                let (cs, ct) = self.covariances.expect("checked");
                 let rot = t.rotation.to_rotation_matrix();
                 let rm = rot.matrix();
                 kept.par_iter()
                     .map(|pr| {
-                        let q = &target_pts[pr.j as usize];
+                        let q = &self.target[pr.j as usize];
                         let c = unpack(&ct[pr.j as usize])
                             + rm * unpack(&cs[pr.i as usize]) * rm.transpose();
                         // Ω = C⁻¹ = L Lᵀ: the rows are the columns of L, so that Σ r² = eᵀΩe.
@@ -555,30 +577,87 @@ fn icp_with(
                     })
                     .collect()
             }
-        };
-        // 4. Kernel scale from the RMS of the kept pairs' residual norms (trimming has already removed the
-        // gross outliers; a MAD-based scale would let a large consistent subset silence a smaller one).
-        let (pair_sigma, row_sigma) = residual_scales(&rows);
-        let c = (cfg.kernel_scale_sigmas * pair_sigma.max(1e-12))
-            .max(cfg.min_kernel_scale)
-            .max(1e-12);
-        let (h, g, sse) = normal_equations(&rows, cfg.kernel, c);
-        // What is reported (information, residual σ) is the point-to-plane system whenever the target has
-        // normals, so that covariance and degeneracy mean the same whatever the factor.
-        let (info, sigma, wsse) = if cfg.factor != IcpFactor::PointToPlane && normals.is_some() {
-            let prow: Vec<PairRows> = kept.par_iter().map(plane_rows).collect();
+        }
+    }
+
+    /// The kernel scale for rows whose pair residual RMS is `pair_sigma`: `kernel_scale_sigmas` of it, at
+    /// least `min_kernel_scale`. The RMS of the kept pairs, not a MAD: trimming has already removed the
+    /// gross outliers, and a MAD-based scale would let a large consistent subset silence a smaller one.
+    fn kernel_scale(&self, pair_sigma: f64) -> f64 {
+        (self.cfg.kernel_scale_sigmas * pair_sigma.max(1e-12))
+            .max(self.cfg.min_kernel_scale)
+            .max(1e-12)
+    }
+
+    /// What is reported (information, residual σ, weighted SSE): the point-to-plane system whenever the
+    /// target has normals, so that covariance and degeneracy mean the same whatever the factor; else the
+    /// factor's own system `(h, row_sigma, sse)`.
+    fn reported_system(
+        &self,
+        kept: &[Pair],
+        own: (Matrix6<f64>, f64, f64),
+    ) -> (Matrix6<f64>, f64, f64) {
+        if self.cfg.factor != IcpFactor::PointToPlane && self.normals.is_some() {
+            let prow: Vec<PairRows> = kept.par_iter().map(|p| self.plane_rows(p)).collect();
             let (ps, _) = residual_scales(&prow);
-            let (ph, _, psse) = normal_equations(
-                &prow,
-                cfg.kernel,
-                (cfg.kernel_scale_sigmas * ps.max(1e-12))
-                    .max(cfg.min_kernel_scale)
-                    .max(1e-12),
-            );
+            let (ph, _, psse) = normal_equations(&prow, self.cfg.kernel, self.kernel_scale(ps));
             (ph, ps.max(1e-12), psse)
         } else {
-            (h, row_sigma.max(1e-12), sse)
-        };
+            (own.0, own.1.max(1e-12), own.2)
+        }
+    }
+}
+
+/// The Gauss-Newton step of `h δ = −g` (a tiny Levenberg damping keeps a rank-deficient system
+/// solvable); `None` when even LU fails.
+fn gauss_newton_step(h: &Matrix6<f64>, g: &Vector6<f64>) -> Option<Vector6<f64>> {
+    let damp = 1e-9 * h.trace().max(1e-30);
+    let hd = h + Matrix6::identity() * damp;
+    match hd.cholesky() {
+        Some(ch) => Some(ch.solve(&(-g))),
+        None => hd.lu().solve(&(-g)),
+    }
+}
+
+/// [`icp`] and [`icp_lazy_normals`]: iterate pairs → trim → rows → normal equations → step until the step
+/// is below the tolerances or `max_iterations`.
+fn icp_with(
+    source: &IcpCloud,
+    target: &IcpCloud,
+    lazy: Option<&LazyNormals>,
+    target_index: &KdIndex,
+    init: &Isometry3<f64>,
+    cfg: &IcpConfig,
+) -> Result<IcpResult> {
+    let problem = Problem::new(source, target, lazy, target_index, cfg)?;
+    let n_source = problem.source.len();
+    let mut t = *init;
+    let mut converged = false;
+    let mut iterations = 0;
+    let mut last = None;
+    let mut history = Vec::new();
+    for it in 0..=cfg.max_iterations {
+        let it_start = std::time::Instant::now();
+        let mut pairs = problem.correspondences(&t);
+        if pairs.len() < 6 {
+            return Err(Error::Failed(format!(
+                "ICP lost the overlap: {} of {} source points have a target point within {:.4}",
+                pairs.len(),
+                n_source,
+                cfg.max_correspondence_distance
+            )));
+        }
+        // Trimming.
+        pairs.par_sort_unstable_by(|a, b| a.d2.total_cmp(&b.d2).then(a.i.cmp(&b.i)));
+        let d2s: Vec<f32> = pairs.iter().map(|p| p.d2).collect();
+        let keep = trimmed_count(&d2s, n_source, cfg.trim);
+        let fitness = pairs.len() as f64 / n_source as f64;
+        let rmse = (d2s.iter().map(|&d| d as f64).sum::<f64>() / d2s.len() as f64).sqrt();
+        let kept = &pairs[..keep];
+        let rows = problem.rows(kept, &t);
+        let (pair_sigma, row_sigma) = residual_scales(&rows);
+        let (h, g, sse) = normal_equations(&rows, cfg.kernel, problem.kernel_scale(pair_sigma));
+        let (info, sigma, wsse) = problem.reported_system(kept, (h, row_sigma, sse));
         history.push(IcpIteration {
             pairs: pairs.len(),
             kept: keep,
@@ -595,7 +674,7 @@ fn icp_with(
             converged,
             fitness,
             inlier_rmse: rmse,
-            overlap: keep as f64 / source_pts.len() as f64,
+            overlap: keep as f64 / n_source as f64,
             residual_sigma: sigma,
             pairs: keep,
             information: info,
@@ -605,15 +684,8 @@ fn icp_with(
         if converged || it == cfg.max_iterations {
             break;
         }
-        // 5. Gauss-Newton step (tiny Levenberg damping keeps a rank-deficient system solvable).
-        let damp = 1e-9 * h.trace().max(1e-30);
-        let hd = h + Matrix6::identity() * damp;
-        let delta = match hd.cholesky() {
-            Some(ch) => ch.solve(&(-g)),
-            None => match hd.lu().solve(&(-g)) {
-                Some(d) => d,
-                None => break,
-            },
+        let Some(delta) = gauss_newton_step(&h, &g) else {
+            break;
         };
         t = apply_left_increment(&t, &delta);
         iterations += 1;

@@ -132,7 +132,6 @@ impl CalibrationReport {
     /// The report of `c` for the cell directory `cell`, with the frame ids of the ROS outputs and the
     /// whole run's wall time (milliseconds).
     pub fn new(c: &Calibration, cell: &str, frames: &Frames, total_ms: f64) -> Self {
-        let refined = |x: f64| c.refined.then_some(x);
         CalibrationReport {
             schema: CALIBRATION_SCHEMA,
             cell: cell.to_string(),
@@ -144,9 +143,9 @@ impl CalibrationReport {
             covariance_parameters: CALIBRATION_COVARIANCE_PARAMETERS,
             sigma: SigmaReport::from_covariance(&c.covariance),
             refined: c.refined,
-            fitness: refined(c.fitness),
-            inlier_rmse_m: refined(c.inlier_rmse),
-            overlap: refined(c.overlap),
+            fitness: c.fitness,
+            inlier_rmse_m: c.inlier_rmse,
+            overlap: c.overlap,
             converged: c.refined.then_some(c.converged),
             degenerate: c.degeneracy.is_degenerate(),
             degeneracy: c.degeneracy.clone(),

@@ -146,33 +146,36 @@ impl Drop for Detections {
     }
 }
 
-/// Checks the settings.
-fn validate(cfg: &AprilTagConfig) -> Result<()> {
-    let bad = |field: &str, msg: &str| {
-        Err(Error::Config {
-            field: format!("apriltag.{field}"),
-            msg: msg.into(),
-        })
-    };
-    if !(cfg.quad_decimate >= 1.0 && cfg.quad_decimate <= 16.0) {
-        return bad("quad_decimate", "must be between 1 and 16");
+impl AprilTagConfig {
+    /// Checks the settings; the error names the field (`apriltag.…`).
+    pub fn validate(&self) -> Result<()> {
+        let cfg = self;
+        let bad = |field: &str, msg: &str| {
+            Err(Error::Config {
+                field: format!("apriltag.{field}"),
+                msg: msg.into(),
+            })
+        };
+        if !(cfg.quad_decimate >= 1.0 && cfg.quad_decimate <= 16.0) {
+            return bad("quad_decimate", "must be between 1 and 16");
+        }
+        if !cfg.quad_sigma.is_finite() || cfg.quad_sigma.abs() > 10.0 {
+            return bad("quad_sigma", "must be between -10 and 10 pixels");
+        }
+        if !(0.0..=10.0).contains(&cfg.decode_sharpening) {
+            return bad("decode_sharpening", "must be between 0 and 10");
+        }
+        if cfg.max_hamming > 3 {
+            return bad(
+                "max_hamming",
+                "AprilTag corrects at most 3 bits (its decode table grows too large beyond)",
+            );
+        }
+        if !cfg.min_decision_margin.is_finite() {
+            return bad("min_decision_margin", "must be a number");
+        }
+        Ok(())
     }
-    if !cfg.quad_sigma.is_finite() || cfg.quad_sigma.abs() > 10.0 {
-        return bad("quad_sigma", "must be between -10 and 10 pixels");
-    }
-    if !(0.0..=10.0).contains(&cfg.decode_sharpening) {
-        return bad("decode_sharpening", "must be between 0 and 10");
-    }
-    if cfg.max_hamming > 3 {
-        return bad(
-            "max_hamming",
-            "AprilTag corrects at most 3 bits (its decode table grows too large beyond)",
-        );
-    }
-    if !cfg.min_decision_margin.is_finite() {
-        return bad("min_decision_margin", "must be a number");
-    }
-    Ok(())
 }
 
 /// A detector with its family added; the detector is declared first so that it is dropped (and lets go
@@ -215,7 +218,7 @@ pub(crate) fn detect_apriltags(
     dict: MarkerDictionary,
     cfg: &AprilTagConfig,
 ) -> Result<Vec<AprilTagHit>> {
-    validate(cfg)?;
+    cfg.validate()?;
     PREPARED.with(|cell| {
         let mut slot = cell.borrow_mut();
         if !matches!(&*slot, Some(p) if p.dict == dict && p.max_hamming == cfg.max_hamming) {

@@ -82,42 +82,45 @@ impl Default for ArucoConfig {
     }
 }
 
-/// Checks the settings.
-fn validate(cfg: &ArucoConfig) -> Result<()> {
-    let bad = |field: &str, msg: &str| {
-        Err(Error::Config {
-            field: format!("opencv.{field}"),
-            msg: msg.into(),
-        })
-    };
-    if cfg.adaptive_thresh_win_size_min < 3
-        || cfg.adaptive_thresh_win_size_max < cfg.adaptive_thresh_win_size_min
-        || cfg.adaptive_thresh_win_size_step == 0
-    {
-        return bad(
-            "adaptive_thresh_win_size_*",
-            "need 3 <= min <= max and a positive step",
-        );
+impl ArucoConfig {
+    /// Checks the settings; the error names the field (`opencv.…`).
+    pub fn validate(&self) -> Result<()> {
+        let cfg = self;
+        let bad = |field: &str, msg: &str| {
+            Err(Error::Config {
+                field: format!("opencv.{field}"),
+                msg: msg.into(),
+            })
+        };
+        if cfg.adaptive_thresh_win_size_min < 3
+            || cfg.adaptive_thresh_win_size_max < cfg.adaptive_thresh_win_size_min
+            || cfg.adaptive_thresh_win_size_step == 0
+        {
+            return bad(
+                "adaptive_thresh_win_size_*",
+                "need 3 <= min <= max and a positive step",
+            );
+        }
+        if !(cfg.min_marker_perimeter_rate > 0.0 && cfg.min_marker_perimeter_rate < 4.0) {
+            return bad("min_marker_perimeter_rate", "must be in (0, 4)");
+        }
+        if !(cfg.polygonal_approx_accuracy_rate > 0.0 && cfg.polygonal_approx_accuracy_rate < 1.0) {
+            return bad("polygonal_approx_accuracy_rate", "must be in (0, 1)");
+        }
+        if cfg.perspective_remove_pixel_per_cell == 0 {
+            return bad("perspective_remove_pixel_per_cell", "must be at least 1");
+        }
+        if !(0.0..=1.0).contains(&cfg.error_correction_rate) {
+            return bad("error_correction_rate", "must be between 0 and 1");
+        }
+        if !cfg.adaptive_thresh_constant.is_finite() {
+            return bad("adaptive_thresh_constant", "must be a number");
+        }
+        if cfg.corner_refinement_half_window_px == 0 {
+            return bad("corner_refinement_half_window_px", "must be at least 1");
+        }
+        Ok(())
     }
-    if !(cfg.min_marker_perimeter_rate > 0.0 && cfg.min_marker_perimeter_rate < 4.0) {
-        return bad("min_marker_perimeter_rate", "must be in (0, 4)");
-    }
-    if !(cfg.polygonal_approx_accuracy_rate > 0.0 && cfg.polygonal_approx_accuracy_rate < 1.0) {
-        return bad("polygonal_approx_accuracy_rate", "must be in (0, 1)");
-    }
-    if cfg.perspective_remove_pixel_per_cell == 0 {
-        return bad("perspective_remove_pixel_per_cell", "must be at least 1");
-    }
-    if !(0.0..=1.0).contains(&cfg.error_correction_rate) {
-        return bad("error_correction_rate", "must be between 0 and 1");
-    }
-    if !cfg.adaptive_thresh_constant.is_finite() {
-        return bad("adaptive_thresh_constant", "must be a number");
-    }
-    if cfg.corner_refinement_half_window_px == 0 {
-        return bad("corner_refinement_half_window_px", "must be at least 1");
-    }
-    Ok(())
 }
 
 /// OpenCV's predefined dictionary for `dict`.
@@ -149,7 +152,7 @@ pub(crate) fn detect_aruco(
 
 /// OpenCV's detector parameters for `cfg` (checked first).
 pub(crate) fn detector_parameters(cfg: &ArucoConfig) -> Result<Ptr<DetectorParameters>> {
-    validate(cfg)?;
+    cfg.validate()?;
     let mut p = DetectorParameters::create().map_err(|e| cv::error("DetectorParameters", e))?;
     p.set_adaptive_thresh_win_size_min(cfg.adaptive_thresh_win_size_min as i32);
     p.set_adaptive_thresh_win_size_max(cfg.adaptive_thresh_win_size_max as i32);

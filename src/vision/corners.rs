@@ -16,7 +16,7 @@
 use super::cv;
 use super::image::GreyImage;
 use crate::cell::Checkerboard;
-use crate::error::Result;
+use crate::error::{check, Error, Result};
 use nalgebra::{Point2, Vector2};
 use opencv::core::{Point2f, Size, TermCriteria, TermCriteria_Type, Vector};
 use serde::{Deserialize, Serialize};
@@ -37,6 +37,24 @@ pub struct CornerConfig {
     /// more tolerant of blur and noise). Default false: it also finds a smaller pattern inside a larger
     /// board (measured: 8x5 inside OpenCV's 9x6 sample images), so a wrong `--board` would go unnoticed.
     pub sector_based_fallback: bool,
+}
+
+impl CornerConfig {
+    /// Checks the values; the error names the field (`corners.…`).
+    pub fn validate(&self) -> Result<()> {
+        if self.subpix_half_window_px == Some(0) {
+            return Err(Error::config(
+                "corners.subpix_half_window_px",
+                "must be at least 1 pixel",
+            ));
+        }
+        check::at_least(
+            "corners.subpix_max_iterations",
+            self.subpix_max_iterations as usize,
+            1,
+        )?;
+        check::positive("corners.subpix_epsilon_px", self.subpix_epsilon_px)
+    }
 }
 
 impl Default for CornerConfig {
@@ -71,6 +89,7 @@ pub fn detect_checkerboard(
     board: &Checkerboard,
     cfg: &CornerConfig,
 ) -> Result<Option<BoardCorners>> {
+    cfg.validate()?;
     let mat = img.to_mat()?;
     let size = Size::new(board.cols as i32, board.rows as i32);
     let mut found: Vector<Point2f> = Vector::new();

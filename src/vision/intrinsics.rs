@@ -18,7 +18,7 @@ use super::image::{read_grey_image, GreyImage};
 use super::pnp::{reprojection_errors_of, rms_max};
 use crate::camera::{DistortionModel, Intrinsics};
 use crate::cell::Board;
-use crate::error::{Error, Result};
+use crate::error::{check, Error, Result};
 use nalgebra::{Isometry3, Point2, Point3};
 use opencv::core::{Mat, Size, TermCriteria, TermCriteria_Type, Vector};
 use rayon::prelude::*;
@@ -48,6 +48,17 @@ pub struct IntrinsicsConfig {
     pub corners: CornerConfig,
     /// ChArUco corner detection.
     pub charuco: CharucoConfig,
+}
+
+impl IntrinsicsConfig {
+    /// Checks the values and the nested detection settings; the error names the field.
+    pub fn validate(&self) -> Result<()> {
+        check::at_least("max_iterations", self.max_iterations as usize, 1)?;
+        check::positive("epsilon", self.epsilon)?;
+        check::at_least("min_views", self.min_views, 1)?;
+        self.corners.validate()?;
+        self.charuco.validate()
+    }
 }
 
 impl Default for IntrinsicsConfig {
@@ -144,6 +155,7 @@ pub fn calibrate_from_views(
     height: u32,
     cfg: &IntrinsicsConfig,
 ) -> Result<IntrinsicCalibration> {
+    cfg.validate()?;
     if views.len() < cfg.min_views.max(1) {
         return Err(Error::InvalidInput(format!(
             "intrinsic calibration needs the target in at least {} images, found it in {}",
@@ -276,6 +288,7 @@ pub fn calibrate_intrinsics(
     board: &Board,
     cfg: &IntrinsicsConfig,
 ) -> Result<IntrinsicCalibration> {
+    cfg.validate()?;
     if paths.is_empty() {
         return Err(Error::InvalidInput("no images given".into()));
     }

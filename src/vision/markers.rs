@@ -219,6 +219,15 @@ pub struct MarkerConfig {
     pub apriltag: AprilTagConfig,
 }
 
+impl MarkerConfig {
+    /// Checks the settings of the refinement and of both detectors; the error names the field.
+    pub fn validate(&self) -> Result<()> {
+        self.subpix.validate()?;
+        self.opencv.validate()?;
+        self.apriltag.validate()
+    }
+}
+
 impl Default for MarkerConfig {
     fn default() -> Self {
         MarkerConfig {
@@ -292,7 +301,7 @@ type Found = (u32, [Point2<f64>; 4]);
 pub fn detect_markers(img: &GreyImage, cfg: &MarkerConfig) -> Result<Vec<MarkerDetection>> {
     let dict = cfg.dictionary;
     let detector = cfg.detector.resolve(dict);
-    validate_subpix(&cfg.subpix)?;
+    cfg.validate()?;
     let (order, mut found): (CornerOrder, Vec<Found>) = match detector {
         MarkerDetector::AprilTag => {
             if !dict.is_apriltag() {
@@ -339,26 +348,30 @@ pub fn detect_markers(img: &GreyImage, cfg: &MarkerConfig) -> Result<Vec<MarkerD
     Ok(out)
 }
 
-fn validate_subpix(s: &SubpixConfig) -> Result<()> {
-    let bad = |field: &str, msg: &str| {
-        Err(Error::Config {
-            field: format!("subpix.{field}"),
-            msg: msg.into(),
-        })
-    };
-    if s.half_window_px == Some(0) {
-        return bad("half_window_px", "must be at least 1");
+impl SubpixConfig {
+    /// Checks the settings; the error names the field (`subpix.…`).
+    pub fn validate(&self) -> Result<()> {
+        let s = self;
+        let bad = |field: &str, msg: &str| {
+            Err(Error::Config {
+                field: format!("subpix.{field}"),
+                msg: msg.into(),
+            })
+        };
+        if s.half_window_px == Some(0) {
+            return bad("half_window_px", "must be at least 1");
+        }
+        if s.edge_passes == 0 {
+            return bad("edge_passes", "must be at least 1");
+        }
+        if s.max_iterations == 0 {
+            return bad("max_iterations", "must be at least 1");
+        }
+        if s.epsilon_px.is_nan() || s.epsilon_px <= 0.0 {
+            return bad("epsilon_px", "must be positive");
+        }
+        Ok(())
     }
-    if s.edge_passes == 0 {
-        return bad("edge_passes", "must be at least 1");
-    }
-    if s.max_iterations == 0 {
-        return bad("max_iterations", "must be at least 1");
-    }
-    if s.epsilon_px.is_nan() || s.epsilon_px <= 0.0 {
-        return bad("epsilon_px", "must be positive");
-    }
-    Ok(())
 }
 
 /// The window half side for a marker: its cell size (shortest side / (bits + 2)), 2 to 11 px.

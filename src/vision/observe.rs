@@ -9,7 +9,7 @@ use super::pnp::pose_of_points;
 use crate::calibration::average::{average_poses, AverageConfig, PoseAverage};
 use crate::camera::Intrinsics;
 use crate::cell::{Board, CellRobot};
-use crate::error::{Error, Result};
+use crate::error::{check, Error, Result};
 use nalgebra::Isometry3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -26,6 +26,15 @@ pub struct ObserveConfig {
     /// A view whose PnP RMS reprojection error exceeds this is rejected (a wrong detection or a bad
     /// intrinsics file), pixels. Default 2.0.
     pub max_rms_px: f64,
+}
+
+impl ObserveConfig {
+    /// Checks the values and the nested detection settings; the error names the field.
+    pub fn validate(&self) -> Result<()> {
+        check::positive("max_rms_px", self.max_rms_px)?;
+        self.corners.validate()?;
+        self.charuco.validate()
+    }
 }
 
 impl Default for ObserveConfig {
@@ -89,6 +98,7 @@ pub fn observe_board(
     intr: &Intrinsics,
     cfg: &ObserveConfig,
 ) -> Result<BoardObservations> {
+    cfg.validate()?;
     if images.is_empty() {
         return Err(Error::InvalidInput(
             "no images to look for the board in".into(),

@@ -154,9 +154,11 @@ pub(super) fn summary(c: &Calibration) -> serde_json::Value {
 pub(super) fn quality_table(c: &Calibration) -> String {
     let mut rows = vec![];
     if c.refined {
-        rows.push(("fitness", num(c.fitness, 4)));
-        rows.push(("inlier RMSE (mm)", num(c.inlier_rmse * 1e3, 3)));
-        rows.push(("overlap", num(c.overlap, 4)));
+        let opt =
+            |x: Option<f64>, scale: f64, digits| x.map_or("-".into(), |v| num(v * scale, digits));
+        rows.push(("fitness", opt(c.fitness, 1.0, 4)));
+        rows.push(("inlier RMSE (mm)", opt(c.inlier_rmse, 1e3, 3)));
+        rows.push(("overlap", opt(c.overlap, 1.0, 4)));
         rows.push(("converged", yes_no(c.converged)));
     } else {
         rows.push((

@@ -8,7 +8,7 @@ use super::scene::PALETTE;
 use super::sections::{
     consistency_section, convergence_section, matrix_table, pose_formats, residual_section,
 };
-use super::{finish, Placement, Report, TwoClouds};
+use super::{finish, Placement, PlacementResidual, Report, TwoClouds};
 use crate::calibration::robot_to_robot::{robot_pair, Calibration, FusedCell};
 use crate::cell::Cell;
 use crate::error::Result;
@@ -52,39 +52,7 @@ pub fn comparison_report(cell: &Cell, fused: &FusedCell, runs: &[MethodRun]) -> 
                 Some(a.map_or((r, tr), |(ar, at)| (ar.max(r), at.max(tr))))
             })
     };
-    let mut placements = Vec::new();
-    // The lead's result first: it sets the residual colour scale.
-    let order: Vec<usize> = lead
-        .into_iter()
-        .chain((0..ok.len()).filter(|k| Some(*k) != lead))
-        .collect();
-    for &k in &order {
-        let (m, c) = ok[k];
-        let is_lead = Some(k) == lead;
-        placements.push(Placement {
-            name: format!(
-                "{} cloud by {m}{}",
-                c.other,
-                if c.refined { " (refined)" } else { "" }
-            ),
-            transform: c.transform,
-            rgb: PALETTE[1 + k % (PALETTE.len() - 1)],
-            visible: is_lead,
-            views: if is_lead { vec!["refined"] } else { vec![] },
-            residual: true,
-        });
-    }
-    if let Some(k) = lead {
-        let (m, c) = ok[k];
-        placements.push(Placement {
-            name: format!("{} cloud by {m}, initial estimate", c.other),
-            transform: c.initial.transform,
-            rgb: PALETTE[2],
-            visible: false,
-            views: vec!["initial"],
-            residual: false,
-        });
-    }
+    let placements = placements(&ok, lead);
     let lead_cal = lead.map(|k| ok[k].1);
     let two = TwoClouds {
         reference_name: format!("{} cloud (reference)", rr.name),
@@ -119,81 +87,10 @@ pub fn comparison_report(cell: &Cell, fused: &FusedCell, runs: &[MethodRun]) -> 
         .extend(robot_lines((rr, or), fused, lead_cal, other_at));
     sc.fit_camera();
 
-    let rows: Vec<Vec<String>> = runs
-        .iter()
-        .map(|r| match r.outcome {
-            Ok(c) => vec![
-                esc(r.method),
-                "ok".into(),
-                err_text(c.initial_error_vs_truth),
-                if c.refined {
-                    err_text(c.error_vs_truth)
-                } else {
-                    "-".into()
-                },
-                err_text(disagreement(r.method, &c.transform)),
-                format!("{:.2} s", r.time_ms / 1e3),
-                if c.trust.trusted {
-                    "<span class=\"good\">yes</span>".into()
-                } else {
-                    format!(
-                        "<span class=\"bad\">NO</span>: {}",
-                        esc(&c.trust.reasons.join("; "))
-                    )
-                },
-            ],
-            Err(e) => vec![
-                esc(r.method),
-                if r.skipped {
-                    "skipped"
-                } else {
-                    "<span class=\"bad\">FAILED</span>"
-                }
-                .into(),
-                esc(e.lines().next().unwrap_or("")),
-                String::new(),
-                String::new(),
-                String::new(),
-                String::new(),
-            ],
-        })
-        .collect();
-    let mut per_method = String::new();
-    for (m, c) in &ok {
-        per_method.push_str(&details(
-            &format!(
-                "{m}: transform, quality{}",
-                if c.trust.trusted {
-                    ""
-                } else {
-                    " (NOT TRUSTED)"
-                }
-            ),
-            &format!(
-                "{}{}{}",
-                matrix_table(&c.transform, &format!("transform-{m}")),
-                pose_formats(&c.transform),
-                quality_table(c)
-            ),
-        ));
-    }
+    let rows = method_rows(runs, &disagreement);
+    let per_method = method_details(&ok);
     let trusted = ok.iter().any(|(_, c)| c.trust.trusted);
-    let reasons: Vec<String> = if trusted {
-        Vec::new()
-    } else if ok.is_empty() {
-        vec!["every method failed or was skipped".into()]
-    } else {
-        vec!["no method gave a trusted result".into()]
-    };
-    let verdict = banner(
-        trusted,
-        &match lead_cal {
-            Some(c) if trusted => format!("{} gives a trusted result (shown first).", c.method),
-            _ => "No method gives a trusted result.".to_string(),
-        },
-        &reasons,
-        &[],
-    );
+    let verdict = verdict(trusted, ok.is_empty(), lead_cal);
     let cell_name = cell
         .dir
         .file_name()
@@ -258,6 +155,154 @@ pub fn comparison_report(cell: &Cell, fused: &FusedCell, runs: &[MethodRun]) -> 
         r = esc(&rr.name),
         o = esc(&or.name),
     );
+    let data = page_data(cell, runs, trusted, lead_cal, &residuals);
+    Ok(finish(
+        &sc,
+        &format!("depthcal compare {cell_name}"),
+        &body,
+        data,
+        &format!("COMPARE {cell_name}"),
+        trusted,
+    ))
+}
+
+/// The other robot's cloud as each method places it, the lead's first (it sets the residual colour scale
+/// and is the one shown), then the lead's initial estimate.
+fn placements(ok: &[(&str, &Calibration)], lead: Option<usize>) -> Vec<Placement> {
+    let mut placements = Vec::new();
+    // The lead's result first: it sets the residual colour scale.
+    let order: Vec<usize> = lead
+        .into_iter()
+        .chain((0..ok.len()).filter(|k| Some(*k) != lead))
+        .collect();
+    for &k in &order {
+        let (m, c) = ok[k];
+        let is_lead = Some(k) == lead;
+        placements.push(Placement {
+            name: format!(
+                "{} cloud by {m}{}",
+                c.other,
+                if c.refined { " (refined)" } else { "" }
+            ),
+            transform: c.transform,
+            rgb: PALETTE[1 + k % (PALETTE.len() - 1)],
+            visible: is_lead,
+            views: if is_lead { vec!["refined"] } else { vec![] },
+            residual: true,
+        });
+    }
+    if let Some(k) = lead {
+        let (m, c) = ok[k];
+        placements.push(Placement {
+            name: format!("{} cloud by {m}, initial estimate", c.other),
+            transform: c.initial.transform,
+            rgb: PALETTE[2],
+            visible: false,
+            views: vec!["initial"],
+            residual: false,
+        });
+    }
+    placements
+}
+
+/// The largest difference of a method's transform from the other methods' results: `(degrees, metres)`.
+type Disagreement<'a> = dyn Fn(&str, &Isometry3<f64>) -> Option<(f64, f64)> + 'a;
+
+/// One table row per method: status, errors against the truth, the largest disagreement with the others,
+/// time and trust.
+fn method_rows(runs: &[MethodRun], disagreement: &Disagreement) -> Vec<Vec<String>> {
+    runs.iter()
+        .map(|r| match r.outcome {
+            Ok(c) => vec![
+                esc(r.method),
+                "ok".into(),
+                err_text(c.initial_error_vs_truth),
+                if c.refined {
+                    err_text(c.error_vs_truth)
+                } else {
+                    "-".into()
+                },
+                err_text(disagreement(r.method, &c.transform)),
+                format!("{:.2} s", r.time_ms / 1e3),
+                if c.trust.trusted {
+                    "<span class=\"good\">yes</span>".into()
+                } else {
+                    format!(
+                        "<span class=\"bad\">NO</span>: {}",
+                        esc(&c.trust.reasons.join("; "))
+                    )
+                },
+            ],
+            Err(e) => vec![
+                esc(r.method),
+                if r.skipped {
+                    "skipped"
+                } else {
+                    "<span class=\"bad\">FAILED</span>"
+                }
+                .into(),
+                esc(e.lines().next().unwrap_or("")),
+                String::new(),
+                String::new(),
+                String::new(),
+                String::new(),
+            ],
+        })
+        .collect()
+}
+
+/// A folded section per method that ran: its transform in every format and its quality figures.
+fn method_details(ok: &[(&str, &Calibration)]) -> String {
+    let mut per_method = String::new();
+    for (m, c) in ok {
+        per_method.push_str(&details(
+            &format!(
+                "{m}: transform, quality{}",
+                if c.trust.trusted {
+                    ""
+                } else {
+                    " (NOT TRUSTED)"
+                }
+            ),
+            &format!(
+                "{}{}{}",
+                matrix_table(&c.transform, &format!("transform-{m}")),
+                pose_formats(&c.transform),
+                quality_table(c)
+            ),
+        ));
+    }
+    per_method
+}
+
+/// The page's verdict: trusted when any method is, with the lead method named.
+fn verdict(trusted: bool, none_ran: bool, lead: Option<&Calibration>) -> String {
+    let reasons: Vec<String> = if trusted {
+        Vec::new()
+    } else if none_ran {
+        vec!["every method failed or was skipped".into()]
+    } else {
+        vec!["no method gave a trusted result".into()]
+    };
+    banner(
+        trusted,
+        &match lead {
+            Some(c) if trusted => format!("{} gives a trusted result (shown first).", c.method),
+            _ => "No method gives a trusted result.".to_string(),
+        },
+        &reasons,
+        &[],
+    )
+}
+
+/// The page's embedded data: every method's summary (the names and forms of `--json`) and the residuals.
+fn page_data(
+    cell: &Cell,
+    runs: &[MethodRun],
+    trusted: bool,
+    lead: Option<&Calibration>,
+    residuals: &[PlacementResidual],
+) -> serde_json::Value {
     let methods: Vec<serde_json::Value> = runs
         .iter()
         .map(|r| match r.outcome {
@@ -275,18 +320,10 @@ pub fn comparison_report(cell: &Cell, fused: &FusedCell, runs: &[MethodRun]) -> 
             }),
         })
         .collect();
-    let data = json!({
+    json!({
         "kind": "compare",
         "cell": cell.dir,
-        "summary": {"trusted": trusted, "lead": lead_cal.map(|c| c.method.clone()), "methods": methods},
+        "summary": {"trusted": trusted, "lead": lead.map(|c| c.method.clone()), "methods": methods},
         "residuals": residuals.iter().map(|p| json!({"name": p.name, "stats": p.stats, "histogram": p.histogram})).collect::<Vec<_>>(),
-    });
-    Ok(finish(
-        &sc,
-        &format!("depthcal compare {cell_name}"),
-        &body,
-        data,
-        &format!("COMPARE {cell_name}"),
-        trusted,
-    ))
+    })
 }

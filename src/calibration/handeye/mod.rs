@@ -40,6 +40,9 @@ pub mod ax_zb;
 pub mod depth;
 pub mod refine;
 pub mod reprojection;
+mod solve;
+
+pub use solve::calibrate_hand_eye;
 
 use crate::calibration::average::{
     average_poses, rotation_angle_between, AverageConfig, PoseAverage,
@@ -48,7 +51,7 @@ use crate::error::{Error, Result};
 use crate::geometry::Rng;
 use crate::io::poses::PoseRecord;
 use nalgebra::{Isometry3, Matrix3, UnitQuaternion, Vector3};
-use refine::{frame_error, Kernel};
+use refine::frame_error;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::Path;
@@ -404,7 +407,7 @@ pub fn board_for(frames: &[HandEyeFrame], x: &Isometry3<f64>) -> Result<Isometry
     Ok(average_poses(&poses, None, &AverageConfig::default())?.mean)
 }
 
-use crate::stats::{median, rms};
+use crate::stats::median;
 
 /// Checks the frames before solving: count, finite values, plausible translations.
 pub fn validate_frames(frames: &[HandEyeFrame], config: &HandEyeConfig) -> Result<()> {
@@ -713,263 +716,6 @@ fn convention_hint(
         Some((_, msg)) => format!("; {msg}"),
         None => String::new(),
     }
-}
-
-/// Hand-eye calibration: every closed form, the best as a start, joint robust refinement with outlier
-/// rejection, residuals, and the board pose in the base. See the module documentation for the conventions.
-///
-/// Errors for fewer than 3 frames, NaN or implausible poses, motions that cannot determine the answer
-/// (no rotation, all rotations about one axis) or robot and camera motions that clearly disagree.
-pub fn calibrate_hand_eye(
-    frames: &[HandEyeFrame],
-    config: &HandEyeConfig,
-) -> Result<HandEyeResult> {
-    config.validate()?;
-    validate_frames(frames, config)?;
-    let motions = motion_pairs(frames, config.max_pairs);
-    let (excitation, mut warnings) = check_motions(&motions, config)?;
-    let lever = median(
-        &frames
-            .iter()
-            .map(|f| f.t_cam_board.translation.vector.norm())
-            .collect::<Vec<_>>(),
-    )
-    .max(0.01);
-
-    // Every closed form.
-    let mut closed_forms = Vec::new();
-    let mut best: Option<(f64, HandEyeMethod, Isometry3<f64>, Isometry3<f64>)> = None;
-    for m in HandEyeMethod::CLOSED_FORMS {
-        match solve_closed_form(m, frames, &motions) {
-            Ok((x, z)) => {
-                let r = frame_residuals(frames, &x, &z);
-                let rd: Vec<f64> = r.iter().map(|p| p.0.to_degrees()).collect();
-                let tm: Vec<f64> = r.iter().map(|p| p.1 * 1e3).collect();
-                closed_forms.push(ClosedFormResult {
-                    method: m,
-                    t_ee_cam: Some(x),
-                    t_base_board: Some(z),
-                    rotation_median_deg: median(&rd),
-                    translation_median_mm: median(&tm),
-                    rotation_rms_deg: rms(&rd),
-                    translation_rms_mm: rms(&tm),
-                    error: None,
-                });
-                let score = robust_score(frames, &x, &z, lever);
-                let wanted = config.method == HandEyeMethod::Auto || config.method == m;
-                if wanted && best.as_ref().is_none_or(|b| score < b.0) {
-                    best = Some((score, m, x, z));
-                }
-            }
-            Err(e) => {
-                warnings.push(format!("{m}: {e}"));
-                closed_forms.push(ClosedFormResult {
-                    method: m,
-                    t_ee_cam: None,
-                    t_base_board: None,
-                    rotation_median_deg: f64::NAN,
-                    translation_median_mm: f64::NAN,
-                    rotation_rms_deg: f64::NAN,
-                    translation_rms_mm: f64::NAN,
-                    error: Some(e.to_string()),
-                });
-            }
-        }
-    }
-    let Some((mut score, method, mut x, mut z)) = best else {
-        return Err(Error::Failed(format!(
-            "hand-eye method {} failed on these frames",
-            config.method
-        )));
-    };
-    let mut from_lmeds = false;
-    if config.method == HandEyeMethod::Auto && config.refine {
-        if let Some((s, lx, lz)) = lmeds(frames, config, lever) {
-            if s < score {
-                score = s;
-                x = lx;
-                z = lz;
-                from_lmeds = true;
-            }
-        }
-    }
-    let _ = score;
-
-    let n = frames.len();
-    let mut rejected_mask = vec![false; n];
-    let mut iterations = 0;
-    let mut converged = true;
-    let mut normalized = vec![0.0; n];
-    let mut t_ee_cam_sigma = None;
-    if config.refine {
-        let all = vec![true; n];
-        let (sr, st) = robust_sigmas(&frame_residuals(frames, &x, &z));
-        let p1 = refine::refine(
-            frames,
-            &all,
-            &x,
-            &z,
-            sr,
-            st,
-            Kernel::Cauchy(config.cauchy_width),
-            config.max_iterations,
-        );
-        iterations += p1.iterations;
-        x = p1.t_ee_cam;
-        z = p1.t_base_board;
-        let res = frame_residuals(frames, &x, &z);
-        let (sr, st) = robust_sigmas(&res);
-        let norm_of = |r: &(f64, f64), sr: f64, st: f64| {
-            // Per-axis σ: a 6-D vector whose norm is √((θ/σ_r)² + (d/σ_t)²).
-            ((r.0 / sr).powi(2) + (r.1 / st).powi(2)).sqrt()
-        };
-        let mut order: Vec<(f64, usize)> = Vec::new();
-        for (i, r) in res.iter().enumerate() {
-            let e = norm_of(r, sr, st);
-            let abs_bad = config
-                .max_rotation_residual_deg
-                .is_some_and(|m| r.0.to_degrees() > m)
-                || config
-                    .max_translation_residual_mm
-                    .is_some_and(|m| r.1 * 1e3 > m);
-            if e > config.outlier_threshold || abs_bad {
-                order.push((e, i));
-            }
-        }
-        // Keep at least max(3, ⌈n/2⌉) frames: reject the worst first.
-        let keep_min = 3.max(n.div_ceil(2));
-        order.sort_by(|a, b| b.0.total_cmp(&a.0));
-        let can_reject = n.saturating_sub(keep_min);
-        if order.len() > can_reject {
-            warnings.push(format!(
-                "{} of {n} frames look like outliers; only the worst {can_reject} are rejected",
-                order.len()
-            ));
-        }
-        for (_, i) in order.iter().take(can_reject) {
-            rejected_mask[*i] = true;
-        }
-        let active: Vec<bool> = rejected_mask.iter().map(|r| !r).collect();
-        let inl: Vec<(f64, f64)> = res
-            .iter()
-            .zip(&active)
-            .filter(|(_, a)| **a)
-            .map(|(r, _)| *r)
-            .collect();
-        let (sr2, st2) = robust_sigmas(&inl);
-        let p2 = refine::refine(
-            frames,
-            &active,
-            &x,
-            &z,
-            sr2,
-            st2,
-            Kernel::Huber(config.outlier_threshold),
-            config.max_iterations,
-        );
-        iterations += p2.iterations;
-        converged = p2.converged;
-        x = p2.t_ee_cam;
-        z = p2.t_base_board;
-        let res = frame_residuals(frames, &x, &z);
-        for (i, r) in res.iter().enumerate() {
-            normalized[i] = norm_of(r, sr2, st2);
-        }
-        t_ee_cam_sigma =
-            refine::hand_eye_sigma(frames, &active, &x, &z, sr2, st2).map(|(r, t)| HandEyeSigma {
-                rotation_deg: r.to_degrees(),
-                translation_mm: t * 1e3,
-            });
-        if !converged {
-            warnings.push(format!(
-                "the refinement did not converge in {} iterations",
-                config.max_iterations
-            ));
-        }
-    }
-    let res = frame_residuals(frames, &x, &z);
-    let residuals: Vec<FrameResidual> = frames
-        .iter()
-        .zip(&res)
-        .enumerate()
-        .map(|(i, (f, r))| FrameResidual {
-            frame: f.id.clone(),
-            rotation_deg: r.0.to_degrees(),
-            translation_mm: r.1 * 1e3,
-            normalized: normalized[i],
-            rejected: rejected_mask[i],
-        })
-        .collect();
-    let rejected: Vec<String> = residuals
-        .iter()
-        .filter(|r| r.rejected)
-        .map(|r| r.frame.clone())
-        .collect();
-    if !rejected.is_empty() {
-        let list: Vec<String> = residuals
-            .iter()
-            .filter(|r| r.rejected)
-            .map(|r| {
-                format!(
-                    "{} ({:.2}°, {:.1} mm)",
-                    r.frame, r.rotation_deg, r.translation_mm
-                )
-            })
-            .collect();
-        warnings.push(format!(
-            "rejected {} outlier frame(s): {}",
-            rejected.len(),
-            list.join(", ")
-        ));
-    }
-    {
-        let inl: Vec<&FrameResidual> = residuals.iter().filter(|r| !r.rejected).collect();
-        let mr = median(&inl.iter().map(|r| r.rotation_deg).collect::<Vec<_>>());
-        let mt = median(&inl.iter().map(|r| r.translation_mm).collect::<Vec<_>>());
-        if mr > config.warn_residual_deg || mt > config.warn_residual_mm {
-            let mine = robust_score(frames, &x, &z, lever);
-            let hint = convention_hint(frames, config, lever, mine);
-            warnings.push(format!(
-                "the solution fits poorly (median residual {mr:.2}°, {mt:.1} mm): check that the robot poses \
-                 are T_base_ee (flange in base) and the target poses T_cam_board (board in camera){hint}"
-            ));
-        }
-    }
-    let inlier_frames: Vec<HandEyeFrame> = frames
-        .iter()
-        .zip(&rejected_mask)
-        .filter(|(_, r)| !**r)
-        .map(|(f, _)| f.clone())
-        .collect();
-    let board_poses: Vec<Isometry3<f64>> = inlier_frames
-        .iter()
-        .map(|f| f.t_base_ee * x * f.t_cam_board)
-        .collect();
-    let board = average_poses(&board_poses, None, &AverageConfig::default())?;
-    let inl: Vec<&FrameResidual> = residuals.iter().filter(|r| !r.rejected).collect();
-    let k = inl.len().max(1) as f64;
-    let sigma_rotation_deg =
-        (inl.iter().map(|r| r.rotation_deg.powi(2)).sum::<f64>() / (3.0 * k)).sqrt();
-    let sigma_translation_mm =
-        (inl.iter().map(|r| r.translation_mm.powi(2)).sum::<f64>() / (3.0 * k)).sqrt();
-    Ok(HandEyeResult {
-        t_ee_cam: x,
-        t_base_board: z,
-        method,
-        from_lmeds,
-        refined: config.refine,
-        residuals,
-        rejected,
-        closed_forms,
-        excitation,
-        board,
-        sigma_rotation_deg,
-        sigma_translation_mm,
-        t_ee_cam_sigma,
-        iterations,
-        converged,
-        warnings,
-    })
 }
 
 /// The 1-σ of an estimated hand-eye transform, RMS per axis.
