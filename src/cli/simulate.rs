@@ -73,14 +73,34 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     )
 }
 
-/// Runs `depthcal simulate`.
+/// Runs `depthcal simulate`: settings from --config and the flags, a check of the output directory, the cell
+/// generated and written, then its summary.
 #[cfg(feature = "sim")]
 pub fn run(a: Args) -> anyhow::Result<()> {
-    use anyhow::{bail, Context};
-    use depthcal::sim::{SimCell, SimConfig};
-    use indicatif::{ProgressBar, ProgressStyle};
+    use anyhow::Context;
+    use depthcal::sim::SimCell;
     use std::time::Instant;
-    let mut cfg: SimConfig = super::output::read_config(a.config.as_deref(), "SimConfig")?;
+    let cfg = settings(&a)?;
+    check_out_dir(&a)?;
+    let start = Instant::now();
+    let cell = SimCell::generate(&cfg)?;
+    let stats = write_cell(&cell, &a.out_dir)
+        .with_context(|| format!("writing the cell into {}", a.out_dir.display()))?;
+    let seconds = start.elapsed().as_secs_f64();
+    if a.json {
+        let out = depthcal::report::SimulationReport::new(&cell, &cfg, &stats, &a.out_dir, seconds);
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    } else {
+        print_text(&a, &cfg, &cell, &stats, seconds);
+    }
+    Ok(())
+}
+
+/// The simulator's settings: --config (or the defaults), then each flag given over it.
+#[cfg(feature = "sim")]
+fn settings(a: &Args) -> anyhow::Result<depthcal::sim::SimConfig> {
+    let mut cfg: depthcal::sim::SimConfig =
+        super::output::read_config(a.config.as_deref(), "SimConfig")?;
     if let Some(s) = a.seed {
         cfg.seed = s;
     }
@@ -107,35 +127,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         cfg.color = false;
     }
     if a.board.given() {
-        let mut b = cfg.scene.board.clone().unwrap_or_default();
-        if a.board.board.is_some() {
-            b.charuco = None;
-        }
-        if a.board.charuco.is_some() && b.charuco.is_none() {
-            b.charuco = Some(depthcal::sim::board::DEFAULT_CHARUCO);
-        }
-        if let Some(c) = &mut b.charuco {
-            if let Some((x, y)) = a.board.charuco {
-                (c.squares_x, c.squares_y) = (x, y);
-            }
-            if let Some(sq) = a.board.square {
-                c.square_m = sq;
-            }
-            if let Some(m) = a.board.charuco_marker {
-                c.marker_m = m;
-            }
-            if let Some(d) = &a.board.charuco_dict {
-                c.dictionary = d.parse().context("--charuco-dict")?;
-            }
-        } else {
-            if let Some((c, r)) = a.board.board {
-                (b.cols, b.rows) = (c, r);
-            }
-            if let Some(sq) = a.board.square {
-                b.square_m = sq;
-            }
-        }
-        cfg.scene.board = Some(b);
+        cfg.scene.board = Some(board_settings(
+            a,
+            cfg.scene.board.clone().unwrap_or_default(),
+        )?);
     }
     if a.markers.is_some() || a.marker_dict.is_some() || a.marker_size.is_some() {
         let mut m = cfg.scene.markers.clone().unwrap_or_default();
@@ -153,6 +148,51 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if a.textured {
         cfg.scene.textured = true;
     }
+    Ok(cfg)
+}
+
+/// The board flags over `b`: `--board` makes it a checkerboard, `--charuco` a ChArUco board (the default
+/// one unless the config already had one), and the size flags apply to whichever it is.
+#[cfg(feature = "sim")]
+fn board_settings(
+    a: &Args,
+    mut b: depthcal::sim::SimBoardConfig,
+) -> anyhow::Result<depthcal::sim::SimBoardConfig> {
+    use anyhow::Context;
+    if a.board.board.is_some() {
+        b.charuco = None;
+    }
+    if a.board.charuco.is_some() && b.charuco.is_none() {
+        b.charuco = Some(depthcal::sim::board::DEFAULT_CHARUCO);
+    }
+    if let Some(c) = &mut b.charuco {
+        if let Some((x, y)) = a.board.charuco {
+            (c.squares_x, c.squares_y) = (x, y);
+        }
+        if let Some(sq) = a.board.square {
+            c.square_m = sq;
+        }
+        if let Some(m) = a.board.charuco_marker {
+            c.marker_m = m;
+        }
+        if let Some(d) = &a.board.charuco_dict {
+            c.dictionary = d.parse().context("--charuco-dict")?;
+        }
+    } else {
+        if let Some((c, r)) = a.board.board {
+            (b.cols, b.rows) = (c, r);
+        }
+        if let Some(sq) = a.board.square {
+            b.square_m = sq;
+        }
+    }
+    Ok(b)
+}
+
+/// Refuses an output path that is a file, or a non-empty directory without --force.
+#[cfg(feature = "sim")]
+fn check_out_dir(a: &Args) -> anyhow::Result<()> {
+    use anyhow::{bail, Context};
     if a.out_dir.exists() {
         if !a.out_dir.is_dir() {
             bail!("{}: exists and is not a directory", a.out_dir.display());
@@ -169,8 +209,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             );
         }
     }
-    let start = Instant::now();
-    let cell = SimCell::generate(&cfg)?;
+    Ok(())
+}
+
+/// Writes the cell's files into `dir` with a progress bar on stderr.
+#[cfg(feature = "sim")]
+fn write_cell(
+    cell: &depthcal::sim::SimCell,
+    dir: &std::path::Path,
+) -> depthcal::Result<depthcal::sim::WriteStats> {
+    use indicatif::{ProgressBar, ProgressStyle};
     let total = cell.robots.iter().map(|r| r.poses.len()).sum::<usize>();
     let bar = ProgressBar::new(total as u64);
     bar.set_style(
@@ -179,42 +227,46 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             .progress_chars("=> "),
     );
     bar.set_message("simulating");
-    let stats = cell.write(&a.out_dir, &|done| bar.set_position(done as u64));
+    let stats = cell.write(dir, &|done| bar.set_position(done as u64));
     bar.finish_and_clear();
-    let stats = stats.with_context(|| format!("writing the cell into {}", a.out_dir.display()))?;
-    let seconds = start.elapsed().as_secs_f64();
+    stats
+}
+
+/// The human-readable summary: what was written, the true base-to-base transform and the shared scene.
+#[cfg(feature = "sim")]
+fn print_text(
+    a: &Args,
+    cfg: &depthcal::sim::SimConfig,
+    cell: &depthcal::sim::SimCell,
+    stats: &depthcal::sim::WriteStats,
+    seconds: f64,
+) {
     let t = cell.t_base1_base2();
     let dist = t.translation.vector.norm();
     let (_, _, yaw) = t.rotation.euler_angles();
-    if a.json {
-        let out = depthcal::report::SimulationReport::new(&cell, &cfg, &stats, &a.out_dir, seconds);
-        println!("{}", serde_json::to_string_pretty(&out)?);
-    } else {
-        println!(
-            "wrote {}: robots {} (reference) and {}, {} frames each at {}, {} objects; {} files, {:.1} MB in {:.2} s",
-            a.out_dir.display(),
-            cell.robots[0].name,
-            cell.robots[1].name,
-            cfg.frames,
-            cfg.resolution,
-            cell.scene.objects.len(),
-            stats.files,
-            stats.bytes as f64 / 1e6,
-            seconds
-        );
-        println!(
-            "true T_base1_base2: base distance {:.3} m, yaw {:.2} deg (ground_truth.json)",
-            dist,
-            yaw.to_degrees()
-        );
-        println!(
-            "shared scene: {:.0}% of what {} sees, {:.0}% of what {} sees (overlap asked: {:.0}%)",
-            cell.shared[0] * 100.0,
-            cell.robots[0].name,
-            cell.shared[1] * 100.0,
-            cell.robots[1].name,
-            cfg.overlap * 100.0
-        );
-    }
-    Ok(())
+    println!(
+        "wrote {}: robots {} (reference) and {}, {} frames each at {}, {} objects; {} files, {:.1} MB in {:.2} s",
+        a.out_dir.display(),
+        cell.robots[0].name,
+        cell.robots[1].name,
+        cfg.frames,
+        cfg.resolution,
+        cell.scene.objects.len(),
+        stats.files,
+        stats.bytes as f64 / 1e6,
+        seconds
+    );
+    println!(
+        "true T_base1_base2: base distance {:.3} m, yaw {:.2} deg (ground_truth.json)",
+        dist,
+        yaw.to_degrees()
+    );
+    println!(
+        "shared scene: {:.0}% of what {} sees, {:.0}% of what {} sees (overlap asked: {:.0}%)",
+        cell.shared[0] * 100.0,
+        cell.robots[0].name,
+        cell.shared[1] * 100.0,
+        cell.robots[1].name,
+        cfg.overlap * 100.0
+    );
 }
