@@ -51,16 +51,20 @@ impl DepthView {
         let mut near = vec![f32::INFINITY; n];
         let mut far = vec![0f32; n];
         let scale = intrinsics.depth_scale as f32;
-        for v in 0..h {
-            for u in 0..w {
-                let d = depth.data[(v * w + u) as usize];
-                if d == 0 {
-                    continue;
+        // Row by row, `block` pixels at a time: no integer division per pixel.
+        let rows = depth.data.chunks_exact(w.max(1) as usize).take(h as usize);
+        for (v, row) in rows.enumerate().filter(|_| w > 0) {
+            let first = (v as u32 / block * size[0]) as usize;
+            for (bu, run) in row.chunks(block as usize).enumerate() {
+                let k = first + bu;
+                for &d in run {
+                    if d == 0 {
+                        continue;
+                    }
+                    let z = d as f32 * scale;
+                    near[k] = near[k].min(z);
+                    far[k] = far[k].max(z);
                 }
-                let z = d as f32 * scale;
-                let k = ((v / block) * size[0] + u / block) as usize;
-                near[k] = near[k].min(z);
-                far[k] = far[k].max(z);
             }
         }
         for z in &mut near {

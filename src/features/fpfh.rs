@@ -104,7 +104,9 @@ fn f64x3(p: &[f32; 3]) -> [f64; 3] {
 /// Bin indices (0..33) of a pair feature.
 #[inline]
 fn bins(pf: &[f64; 4]) -> [usize; 3] {
-    let b = |x: f64| (x.floor() as i64).clamp(0, 10) as usize;
+    // Truncation instead of `floor` (a libm call on the baseline x86-64 target): they differ only on
+    // negative non-integers, which both clamp to bin 0 (NaN casts to 0 either way).
+    let b = |x: f64| (x as i64).clamp(0, 10) as usize;
     [
         b(11.0 * (pf[0] + std::f64::consts::PI) / std::f64::consts::TAU),
         11 + b(11.0 * (pf[1] + 1.0) * 0.5),

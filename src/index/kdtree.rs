@@ -223,6 +223,47 @@ impl Tree {
         found.then_some(best)
     }
 
+    /// Whether any point lies at squared distance strictly below `max_d2`: stops at the first one found,
+    /// visiting the nearer child first.
+    #[inline]
+    fn any_closer(&self, q: &[f32; 3], max_d2: f32) -> bool {
+        let mut stack = [0u32; STACK];
+        if box_dist2(q, &self.nodes[0]) >= max_d2 {
+            return false;
+        }
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let node = &self.nodes[stack[top] as usize];
+            if node.leaf {
+                if self.items[node.a as usize..node.b as usize]
+                    .iter()
+                    .any(|(p, _)| dist2(q, p) < max_d2)
+                {
+                    return true;
+                }
+                continue;
+            }
+            let (l, r) = (node.a, node.b);
+            let dl = box_dist2(q, &self.nodes[l as usize]);
+            let dr = box_dist2(q, &self.nodes[r as usize]);
+            let ((n, dn), (f, df)) = if dl <= dr {
+                ((l, dl), (r, dr))
+            } else {
+                ((r, dr), (l, dl))
+            };
+            if df < max_d2 {
+                stack[top] = f;
+                top += 1;
+            }
+            if dn < max_d2 {
+                stack[top] = n;
+                top += 1;
+            }
+        }
+        false
+    }
+
     /// The (at most) `k` nearest points within squared distance `max_d2`, into `out` sorted by
     /// (distance, index).
     fn knn_into(&self, q: &[f32; 3], k: usize, max_d2: f32, out: &mut Vec<(usize, f32)>) {
@@ -321,6 +362,14 @@ impl KdIndex {
     pub fn nearest_within(&self, p: &[f32; 3], max_d2: f32) -> Option<(usize, f32)> {
         let (i, d) = self.tree.as_ref()?.nearest(p, max_d2)?;
         Some((i as usize, d))
+    }
+
+    /// Whether any point lies closer than `max_d2` (a **squared** distance, exclusive) to `p`: the same
+    /// answer as `nearest(p).is_some_and(|(_, d)| d < max_d2)`, but the search stops at the first such
+    /// point instead of looking for the nearest. What counting inliers asks.
+    #[inline]
+    pub fn any_closer_than(&self, p: &[f32; 3], max_d2: f32) -> bool {
+        self.tree.as_ref().is_some_and(|t| t.any_closer(p, max_d2))
     }
 
     /// The `k` nearest points, closest first (ties by index).
@@ -445,6 +494,10 @@ mod tests {
             let r2 = 0.01f32;
             let want = (b[0].1 <= r2).then_some(b[0]);
             assert_eq!(idx.nearest_within(&q, r2), want);
+            // Strictly closer: at, just above and just below the nearest distance, and at r2.
+            for t in [r2, b[0].1, b[0].1.next_up(), b[0].1.next_down(), 0.0] {
+                assert_eq!(idx.any_closer_than(&q, t), b[0].1 < t, "{t}");
+            }
             let r = 0.3f32;
             let mut w: Vec<usize> = idx.within_all(&q, r).iter().map(|h| h.0).collect();
             let mut bw: Vec<usize> = b.iter().filter(|h| h.1 <= r * r).map(|h| h.0).collect();
@@ -470,6 +523,10 @@ mod tests {
             );
         }
         assert!(KdIndex::new(&[]).nearest(&[0.0; 3]).is_none());
+        assert!(!KdIndex::new(&[]).any_closer_than(&[0.0; 3], f32::INFINITY));
+        // Exact duplicates: a query on a point is at distance 0, not closer than 0.
+        assert!(!idx.any_closer_than(&pts[0], 0.0));
+        assert!(idx.any_closer_than(&pts[0], f32::MIN_POSITIVE));
         assert!(KdIndex::new(&[]).knn(&[0.0; 3], 3).is_empty());
     }
 
@@ -509,6 +566,9 @@ mod tests {
                 idx.nearest_within(&q, 0.04),
                 (b[0].1 <= 0.04).then_some(b[0])
             );
+            for t in [0.04, b[0].1, b[0].1.next_up(), 1e-4] {
+                assert_eq!(idx.any_closer_than(&q, t), b[0].1 < t, "{t}");
+            }
         }
     }
 }

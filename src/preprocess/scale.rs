@@ -40,8 +40,10 @@ impl ScaleConfig {
 /// Median distance from a point to its nearest neighbour (cloud units).
 ///
 /// For large clouds the kd-tree is built only over a spatially contiguous box of about 20 000 points
-/// around the median point (full density, unlike a strided sample), and the median is taken over up to
-/// 2000 points of the inner part of that box.
+/// around the cloud point nearest the per-axis median (full density, unlike a strided sample), and the
+/// median is taken over up to 2000 points of the inner part of that box. The box is centred on a point of
+/// the cloud, not on the median itself: the median of a hollow cloud (a sphere, two walls) lies in empty
+/// space, where a box would hold no points.
 pub fn estimate_spacing(points: &[[f32; 3]]) -> Result<f64> {
     if points.len() < 2 {
         return Err(Error::InvalidInput(format!(
@@ -53,7 +55,7 @@ pub fn estimate_spacing(points: &[[f32; 3]]) -> Result<f64> {
     let (sample, center, half) = if points.len() <= 2 * LOCAL {
         (points.to_vec(), [0f32; 3], f32::INFINITY)
     } else {
-        let center = median_point(points);
+        let center = nearest_point(points, &median_point(points));
         let extent =
             crate::PointCloud::from_points(points.iter().step_by(16).copied().collect()).extent();
         let mut half = (0.5 * extent * (LOCAL as f64 / points.len() as f64).sqrt()) as f32;
@@ -111,6 +113,19 @@ fn median_point(points: &[[f32; 3]]) -> [f32; 3] {
         *o = v[mid];
     }
     out
+}
+
+/// The point of `points` nearest `q` (ties to the smaller index); `points` is not empty.
+fn nearest_point(points: &[[f32; 3]], q: &[f32; 3]) -> [f32; 3] {
+    let d2 = |p: &[f32; 3]| (0..3).map(|k| (p[k] - q[k]) * (p[k] - q[k])).sum::<f32>();
+    let mut best = (points[0], d2(&points[0]));
+    for p in &points[1..] {
+        let d = d2(p);
+        if d < best.1 {
+            best = (*p, d);
+        }
+    }
+    best.0
 }
 
 /// The voxel edge that leaves about `target` occupied voxels in `points`, never below `min_voxel`.
@@ -192,5 +207,27 @@ mod tests {
         let mut rng = Rng::new(0);
         let one = vec![[rng.uniform(0.0, 1.0) as f32; 3]];
         assert!(estimate_spacing(&one).is_err());
+    }
+
+    /// A hollow cloud: 100 000 points on a unit sphere. Its per-axis median is the centre, where a box
+    /// around the median holds no point; the estimate must still find the spacing on the surface.
+    #[test]
+    fn spacing_of_a_hollow_cloud() {
+        // A Fibonacci sphere: near-uniform spacing sqrt(4π / n) ≈ 0.0112 (nearest neighbour ≈ 0.011).
+        let n = 100_000;
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        let pts: Vec<[f32; 3]> = (0..n)
+            .map(|i| {
+                let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+                let r = (1.0 - z * z).sqrt();
+                let a = golden * i as f64;
+                [(r * a.cos()) as f32, (r * a.sin()) as f32, z as f32]
+            })
+            .collect();
+        let m = median_point(&pts);
+        assert!(m.iter().all(|c| c.abs() < 0.05), "{m:?}");
+        let s = estimate_spacing(&pts).unwrap();
+        let want = (4.0 * std::f64::consts::PI / n as f64).sqrt();
+        assert!(s > 0.7 * want && s < 1.3 * want, "{s} vs {want}");
     }
 }

@@ -766,7 +766,8 @@ fn refit(t: &Isometry3<f64>, ps: &[[f32; 3]], qs: &[[f32; 3]], tau2: f32) -> Iso
     t
 }
 
-/// Fraction of `source` points whose nearest target point (after `t`) is within `tau`.
+/// Fraction of `source` points with a target point (after `t`) closer than `tau` (an existence query:
+/// the search stops at the first such point).
 pub fn cloud_fitness(
     source: &[[f32; 3]],
     target_index: &KdIndex,
@@ -779,11 +780,7 @@ pub fn cloud_fitness(
     let tau2 = (tau * tau) as f32;
     let hits = source
         .par_iter()
-        .filter(|p| {
-            target_index
-                .nearest(&transform_point(t, p))
-                .is_some_and(|(_, d)| d < tau2)
-        })
+        .filter(|p| target_index.any_closer_than(&transform_point(t, p), tau2))
         .count();
     hits as f64 / source.len() as f64
 }

@@ -250,12 +250,10 @@ impl Verifier<'_> {
             .step_by(step)
             .map(|(p, n)| {
                 let pw = transform_point(t, p);
-                let Some((j, d2)) = self.target_index.nearest(&pw) else {
+                // The nearest within reach (the search is bounded by it): beyond it the point scores 0.
+                let Some((j, _)) = self.target_index.nearest_within(&pw, self.reach2) else {
                     return 0.0;
                 };
-                if d2 > self.reach2 {
-                    return 0.0;
-                }
                 let nt = to_v64(&target_normals[j]);
                 let cos = (rot * to_v64(n)).dot(&nt);
                 if (if self.sided { cos } else { cos.abs() }) < self.cos_max {
