@@ -23,6 +23,7 @@
 //! named in words, with the flange motion that explains them (no rotation: the translation is free; one
 //! rotation axis: the translation along it is free).
 
+pub mod joint;
 pub mod observe;
 pub mod plan;
 pub(crate) mod residuals;
@@ -175,7 +176,7 @@ impl HandEyeDepthConfig {
         Ok(())
     }
 
-    fn consistency(&self) -> ConsistencyConfig {
+    pub(crate) fn consistency(&self) -> ConsistencyConfig {
         ConsistencyConfig {
             sample_points: self.sample_points,
             block: self.block,
@@ -288,7 +289,7 @@ fn solve(
 }
 
 /// The per-frame residual medians (metres) and test counts.
-fn frame_stats(sums: &mut [FrameSums]) -> Vec<(f64, usize)> {
+pub(crate) fn frame_stats(sums: &mut [FrameSums]) -> Vec<(f64, usize)> {
     sums.iter_mut()
         .map(|s| {
             let n = s.abs.len();
