@@ -331,6 +331,115 @@ fn calibrate_refine_hand_eye_repairs_the_base_to_base_transform() {
     );
     assert!(r1 < 0.1 && t1 < 1.0, "{r1:.4}° / {t1:.3} mm");
     assert_eq!(code, 0, "{err}");
+    // The joint refinement is reported beside it, documented, and not adopted by default.
+    let j = &refined["joint_hand_eye"];
+    assert_documented(j);
+    for r in j["robots"].as_array().unwrap() {
+        assert_documented_section(r, "depthcal.handeye-joint/1", " robot entries");
+        assert_eq!(r["frames"].as_array().unwrap().len(), 12);
+    }
+    assert_eq!(j["base_adopted"], false);
+    assert!(j["cross_tests"].as_u64().unwrap() > 1000, "{j}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The joint refinement of both hand-eyes and `T_base1_base2` on one simulated cell (both hand-eyes
+/// perturbed): both hand-eyes within 0.3 mm / 0.05° of the truth, trusted, the residuals not worse.
+#[test]
+fn joint_refinement_recovers_both_hand_eyes() {
+    use depthcal::calibration::robot_to_robot::CalibrateConfig;
+    use depthcal::methods::{calibrate_refining_hand_eyes, Method, MethodInputs};
+    let seed = 2;
+    let dir = sim_cell("hed-joint", seed, 12, |_| {});
+    let cell = Cell::open(&dir).unwrap();
+    let gt = cell.ground_truth().unwrap().unwrap();
+    let mut truths = Vec::new();
+    for (k, (mm, deg)) in [(4.0, 1.0), (2.0, 1.5)].into_iter().enumerate() {
+        let truth = true_hand_eye(&gt, &cell.robots[k].name).unwrap();
+        set_hand_eye(
+            &dir,
+            k,
+            truth * perturbation(100 * seed + k as u64, mm, deg),
+        );
+        truths.push(truth);
+    }
+    let cell = Cell::open(&dir).unwrap();
+    let (c, _, hs) = calibrate_refining_hand_eyes(
+        &cell,
+        Method::Depth,
+        &MethodInputs::default(),
+        &CalibrateConfig::default(),
+        true,
+        &mut |_| {},
+    )
+    .unwrap();
+    let j = hs.joint.as_ref().expect("joint is on by default");
+    assert!(j.trusted, "{:?}", j.reasons);
+    assert!(!hs.joint_base_adopted);
+    for (r, truth) in j.robots.iter().zip(&truths) {
+        let (rot, tr) = pose_error(&r.t_ee_cam, truth);
+        eprintln!(
+            "joint {}: {rot:.4}° / {:.3} mm, residual {:.3} -> {:.3} mm",
+            r.robot,
+            tr * 1e3,
+            r.median_before_m * 1e3,
+            r.median_after_m * 1e3
+        );
+        assert!(rot < 0.05 && tr < 0.3e-3, "{}: {rot}° / {tr} m", r.robot);
+        assert!(
+            r.dofs.iter().all(|d| d.status == "observable"),
+            "{:?}",
+            r.dofs
+        );
+        assert!(r.median_after_m <= r.median_before_m * 1.05 + 1e-5);
+    }
+    let (rb, tb) = pose_error(&j.t_base1_base2, &gt.t_base1_base2.unwrap());
+    eprintln!(
+        "joint base-to-base {rb:.4}° / {:.3} mm; calibrate {:?}",
+        tb * 1e3,
+        c.error_vs_truth
+    );
+    assert!(rb < 0.1 && tb < 1e-3, "{rb}° / {tb} m");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A robot whose flange only translated: `calibrate --refine-hand-eye` exits 3, and the joint
+/// refinement says the hand-eye translation is unobservable instead of solving it.
+#[test]
+fn joint_refinement_of_a_degenerate_pose_set_is_untrusted() {
+    let dir = sim_cell("hed-joint-degenerate", 5, 8, |c| degenerate(c, false));
+    let d = dir.display().to_string();
+    let (code, out, err) = depthcal(&["calibrate", &d, "--refine-hand-eye", "--json"]);
+    assert_eq!(code, 3, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let j = &v["joint_hand_eye"];
+    assert_eq!(j["trusted"], false, "{j}");
+    let left = &j["robots"][0];
+    assert_eq!(left["robot"], "left");
+    for dof in left["dofs"].as_array().unwrap() {
+        if dof["dof"].as_str().unwrap().starts_with('t') {
+            assert_ne!(dof["status"], "observable", "{dof}");
+        }
+    }
+    assert!(
+        j["reasons"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|r| r.as_str().unwrap().contains("did not rotate")),
+        "{j}"
+    );
+    assert_eq!(j["base_adopted"], false);
+    // The settings come from --config: a bad one is named.
+    std::fs::write(
+        dir.join("bad.json"),
+        r#"{"refine_hand_eye": {"depth": {"gates_m": []}}}"#,
+    )
+    .unwrap();
+    let bad = dir.join("bad.json").display().to_string();
+    let (code, _, err) = depthcal(&["calibrate", &d, "--refine-hand-eye", "--config", &bad]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("refine_hand_eye.depth.gates_m"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -414,12 +523,23 @@ fn sweep() {
     use depthcal::methods::{
         calibrate_refining_hand_eyes, calibrate_with_method, Method, MethodInputs,
     };
-    let seeds: u64 = std::env::var("HANDEYE_SWEEP_SEEDS")
+    // HANDEYE_SWEEP_SEEDS: a count (1..=N) or a comma-separated list (`9,`); HANDEYE_SWEEP_CONFIG: a calibrate
+    // --config JSON file.
+    let seeds: Vec<u64> = match std::env::var("HANDEYE_SWEEP_SEEDS") {
+        Ok(s) if s.contains(',') => s
+            .split(',')
+            .filter(|x| !x.trim().is_empty())
+            .map(|x| x.trim().parse().unwrap())
+            .collect(),
+        Ok(s) => (1..=s.parse().unwrap()).collect(),
+        Err(_) => (1..=6).collect(),
+    };
+    let cfg: CalibrateConfig = std::env::var("HANDEYE_SWEEP_CONFIG")
         .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(6);
+        .map(|p| serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap())
+        .unwrap_or_default();
     let mut nes = Vec::new();
-    for seed in 1..=seeds {
+    for seed in seeds {
         let dir = sim_cell(&format!("hed-sweep-{seed}"), seed, 12, |_| {});
         let cell = Cell::open(&dir).unwrap();
         let gt = cell.ground_truth().unwrap().unwrap();
@@ -436,24 +556,42 @@ fn sweep() {
             truths.push(truth);
         }
         let cell = Cell::open(&dir).unwrap();
-        let cfg = CalibrateConfig::default();
         let inputs = MethodInputs::default();
         let (plain, _) =
             calibrate_with_method(&cell, Method::Depth, &inputs, &cfg, true, &mut |_| {}).unwrap();
-        let (c, _, hs) = calibrate_refining_hand_eyes(
-            &cell,
-            Method::Depth,
-            &inputs,
-            &cfg,
-            &HandEyeDepthConfig::default(),
-            true,
-            &mut |_| {},
-        )
-        .unwrap();
-        for (h, truth) in hs.iter().zip(&truths) {
+        let (c, _, hs) =
+            calibrate_refining_hand_eyes(&cell, Method::Depth, &inputs, &cfg, true, &mut |_| {})
+                .unwrap();
+        for (h, truth) in hs.robots.iter().zip(&truths) {
             let e = HandEyeTruthReport::new(h, truth);
             nes.push(e.normalised_error);
             eprintln!("| {seed} | {} | {}", h.robot, summary(h, truth));
+        }
+        if let Some(j) = &hs.joint {
+            for (r, truth) in j.robots.iter().zip(&truths) {
+                let e = HandEyeTruthReport::of(&r.initial, &r.t_ee_cam, &r.covariance, truth);
+                eprintln!(
+                    "| {seed} | {} joint | {:.4}° / {:.3} mm -> {:.4}° / {:.3} mm, NE {:.2}, residual {:.3} -> {:.3} mm, trusted {} |",
+                    r.robot,
+                    e.before.rotation_deg,
+                    e.before.translation_m * 1e3,
+                    e.after.rotation_deg,
+                    e.after.translation_m * 1e3,
+                    e.normalised_error,
+                    r.median_before_m * 1e3,
+                    r.median_after_m * 1e3,
+                    j.trusted
+                );
+            }
+            let t = gt.t_base1_base2.unwrap();
+            let (rj, tj) = pose_error(&j.t_base1_base2, &t);
+            eprintln!(
+                "| {seed} | joint base-to-base | {rj:.4}° / {:.3} mm (cross tests {}, adopted {}) {:?} |",
+                tj * 1e3,
+                j.cross_tests,
+                hs.joint_base_adopted,
+                j.reasons
+            );
         }
         let (r0, t0) = plain.error_vs_truth.unwrap();
         let (r1, t1) = c.error_vs_truth.unwrap();

@@ -312,7 +312,7 @@ fn splitmix(mut z: u64) -> u64 {
     z ^ (z >> 31)
 }
 
-fn block_smooth(view: &DepthView, k: usize, cfg: &ConsistencyConfig) -> bool {
+pub(crate) fn block_smooth(view: &DepthView, k: usize, cfg: &ConsistencyConfig) -> bool {
     let (n, f) = (view.near[k] as f64, view.far[k] as f64);
     let z = 0.5 * (n + f);
     n > 0.0 && f - n <= cfg.smooth_relative * z + 6.0 * cfg.sigma(z)

@@ -54,6 +54,10 @@ pub struct CalibrateConfig {
     /// shared objects in every stage (measured on foreign cells with a floor in view: untrusted without
     /// the cut, 0.007° / 0.13 mm with it; 2.0 cost the demo cell 0.02° / 0.25 mm). The free-space test still uses whole frames.
     pub max_range_factor: Option<f64>,
+    /// `--refine-hand-eye`: the per-robot hand-eye refinements from depth, the joint refinement of both
+    /// hand-eyes with `T_base1_base2`, and whether its base-to-base transform is adopted
+    /// (docs/handeye.md#hand-eye-from-depth).
+    pub refine_hand_eye: crate::calibration::handeye::depth::joint::RefineHandEyeConfig,
 }
 
 impl Default for CalibrateConfig {
@@ -109,6 +113,7 @@ impl Default for CalibrateConfig {
             features: Default::default(),
             consistency: ConsistencyConfig::default(),
             max_range_factor: Some(2.5),
+            refine_hand_eye: Default::default(),
         }
     }
 }
@@ -140,6 +145,7 @@ impl CalibrateConfig {
         if let Some(f) = self.max_range_factor {
             crate::error::check::positive("max_range_factor", f)?;
         }
+        self.refine_hand_eye.validate()?;
         Ok(())
     }
 }

@@ -4,17 +4,17 @@ use super::methods::{CalibrateSettings, Method, MethodInputs};
 use super::output::{matrix4_text, spinner};
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
-use depthcal::calibration::handeye::depth::{HandEyeDepthConfig, HandEyeDepthResult};
 use depthcal::calibration::robot_to_robot::{robot_pair, CalibrateConfig, Calibration, FusedCell};
 use depthcal::cell::Cell;
 use depthcal::geometry::pose::{isometry_to_xyzquat, KukaPose};
 use depthcal::geometry::robot_formats::{
     ros1_static_tf_command, ros2_static_tf_command, transform_files, Frames,
 };
+use depthcal::methods::run::HandEyeRefinement;
 use depthcal::methods::{calibrate_refining_hand_eyes, calibrate_with_method};
 use depthcal::report::handeye_depth::true_hand_eye;
 use depthcal::report::CalibrationReport;
-use depthcal::report::HandEyeDepthReport;
+use depthcal::report::{HandEyeDepthReport, JointHandEyeReport};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -61,7 +61,8 @@ pub struct Args {
     #[arg(long, value_name = "ID")]
     child_frame_id: Option<String>,
     /// First refine each robot's hand-eye from its own depth frames (they must agree on one static
-    /// scene), then calibrate with the refined hand-eyes (docs/handeye.md#hand-eye-from-depth).
+    /// scene), then calibrate with the refined hand-eyes, then refine both hand-eyes and the base-to-base
+    /// transform together; settings in --config's `refine_hand_eye` (docs/handeye.md#hand-eye-from-depth).
     #[arg(long)]
     refine_hand_eye: bool,
     #[command(flatten)]
@@ -180,7 +181,7 @@ pub fn run(a: Args) -> Result<()> {
         eprintln!("warning: {w}");
     }
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
-    let report = report(&a, &job, &c, hand_eyes.as_deref(), total_ms)?;
+    let report = report(&a, &job, &c, hand_eyes.as_ref(), total_ms)?;
     write_files(&a, &job, &c, &fused, &report)?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -241,7 +242,7 @@ fn prepare(a: &Args) -> Result<Job> {
 
 /// Calibrates, with a spinner: the result, the fused clouds, and with `--refine-hand-eye` each robot's
 /// hand-eye refinement.
-fn solve(a: &Args, job: &Job) -> Result<(Calibration, FusedCell, Option<Vec<HandEyeDepthResult>>)> {
+fn solve(a: &Args, job: &Job) -> Result<(Calibration, FusedCell, Option<HandEyeRefinement>)> {
     let pb = spinner("opening the cell");
     let mut progress = |s: &str| pb.set_message(s.to_string());
     let refine = !a.no_refine;
@@ -251,7 +252,6 @@ fn solve(a: &Args, job: &Job) -> Result<(Calibration, FusedCell, Option<Vec<Hand
             job.method,
             &job.inputs,
             &job.cfg,
-            &HandEyeDepthConfig::default(),
             refine,
             &mut progress,
         )
@@ -277,7 +277,7 @@ fn report(
     a: &Args,
     job: &Job,
     c: &Calibration,
-    hand_eyes: Option<&[HandEyeDepthResult]>,
+    hand_eyes: Option<&HandEyeRefinement>,
     total_ms: f64,
 ) -> Result<CalibrationReport> {
     let cell_name = a.cell.display().to_string();
@@ -285,13 +285,18 @@ fn report(
     if let Some(h) = hand_eyes {
         let gt = job.cell.ground_truth()?;
         report.hand_eye_refinement = Some(
-            h.iter()
+            h.robots
+                .iter()
                 .map(|r| {
                     let truth = gt.as_ref().and_then(|g| true_hand_eye(g, &r.robot));
                     HandEyeDepthReport::new(r, &cell_name, truth.as_ref())
                 })
                 .collect(),
         );
+        report.joint_hand_eye = h
+            .joint
+            .as_ref()
+            .map(|j| JointHandEyeReport::new(j, h.joint_base_adopted, gt.as_ref()));
     }
     Ok(report)
 }
@@ -332,6 +337,9 @@ fn print_text(c: &Calibration, report: &CalibrationReport, frames: &Frames, tota
     print_quality(c);
     for h in report.hand_eye_refinement.iter().flatten() {
         print_hand_eye(h);
+    }
+    if let Some(j) = &report.joint_hand_eye {
+        print_joint(j);
     }
     println!("initial         {}", c.initial.detail);
     if c.refined {
@@ -441,6 +449,51 @@ fn print_hand_eye(h: &HandEyeDepthReport) {
             ))
             .unwrap_or_default(),
         if h.trusted { "" } else { " (NOT trusted)" }
+    );
+}
+
+/// Both hand-eyes and the base-to-base transform refined together (`--refine-hand-eye`).
+fn print_joint(j: &JointHandEyeReport) {
+    for r in &j.robots {
+        println!(
+            "joint hand-eye {:<7} moved {:.3} deg / {:.2} mm, residual median {:.2} -> {:.2} mm{}",
+            r.robot,
+            r.change_size.rotation_deg,
+            r.change_size.translation_m * 1e3,
+            r.median_residual_before_m * 1e3,
+            r.median_residual_after_m * 1e3,
+            r.error_vs_truth
+                .as_ref()
+                .map(|e| format!(
+                    "; vs truth {:.3} deg / {:.2} mm -> {:.3} deg / {:.2} mm",
+                    e.before.rotation_deg,
+                    e.before.translation_m * 1e3,
+                    e.after.rotation_deg,
+                    e.after.translation_m * 1e3
+                ))
+                .unwrap_or_default()
+        );
+    }
+    println!(
+        "joint base      moved {:.3} deg / {:.2} mm from calibrate's ({}){}{}",
+        j.base_change_size.rotation_deg,
+        j.base_change_size.translation_m * 1e3,
+        if j.base_adopted {
+            "adopted"
+        } else {
+            "reported, not adopted"
+        },
+        j.base_error_vs_truth
+            .as_ref()
+            .map(|e| format!(
+                "; vs truth calibrate {:.3} deg / {:.2} mm, joint {:.3} deg / {:.2} mm",
+                e.calibrate.rotation_deg,
+                e.calibrate.translation_m * 1e3,
+                e.joint.rotation_deg,
+                e.joint.translation_m * 1e3
+            ))
+            .unwrap_or_default(),
+        if j.trusted { "" } else { " (NOT trusted)" }
     );
 }
 

@@ -9,7 +9,7 @@ pub mod run;
 
 pub use run::{
     calibrate_refining_hand_eyes, calibrate_with_method, compare_methods, Comparison,
-    MethodOutcome, MethodRow,
+    HandEyeRefinement, MethodOutcome, MethodRow,
 };
 
 use crate::calibration::initializer::{GlobalRegistration, Initializer, UserGuess};

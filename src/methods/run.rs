@@ -2,12 +2,11 @@
 //! calibrate` and `depthcal compare` (and the Python package) run.
 
 use super::{available, build, Method, MethodInputs};
-use crate::calibration::handeye::depth::{
-    refine_hand_eye_from_depth, HandEyeDepthConfig, HandEyeDepthResult,
-};
+use crate::calibration::handeye::depth::joint::{refine_jointly, JointHandEyeResult};
+use crate::calibration::handeye::depth::{refine_hand_eye_from_depth, HandEyeDepthResult};
 use crate::calibration::robot_to_robot::{
-    calibrate_request, fuse_cell, refine_cell, CalibrateConfig, CalibrateRequest, Calibration,
-    FusedCell,
+    calibrate_request, fuse_cell, refine_cell, robot_pair, CalibrateConfig, CalibrateRequest,
+    Calibration, FusedCell,
 };
 use crate::cell::Cell;
 use crate::error::Result;
@@ -187,21 +186,37 @@ pub fn compare_methods(
     Ok((cmp, fused))
 }
 
+/// What `calibrate --refine-hand-eye` refined besides the calibration.
+#[derive(Clone, Debug)]
+pub struct HandEyeRefinement {
+    /// Each robot's own refinement (cell order).
+    pub robots: Vec<HandEyeDepthResult>,
+    /// Both hand-eyes and `T_base1_base2` refined together (`refine_hand_eye.joint`).
+    pub joint: Option<JointHandEyeResult>,
+    /// The joint `T_base1_base2` replaced the calibration's (`refine_hand_eye.adopt_joint_base` and a
+    /// trusted joint refinement).
+    pub joint_base_adopted: bool,
+}
+
 /// [`calibrate_with_method`] after each robot's hand-eye is refined from its own depth frames
-/// (`calibrate --refine-hand-eye`, [`crate::calibration::handeye::depth`]): a copy of the cell takes the
-/// refined hand-eyes (and, for a trusted refinement, their 1-σ as the hand-eye uncertainty), then the usual
-/// calibration runs on it. A refinement that does not lower its robot's residuals keeps the cell's
-/// hand-eye; an untrusted one makes the calibration untrusted, with its reasons. Returns the calibration,
-/// its fused clouds and each robot's refinement (cell order).
+/// (`calibrate --refine-hand-eye`, [`crate::calibration::handeye::depth`], settings in
+/// `cfg.refine_hand_eye`): a copy of the cell takes the refined hand-eyes (and, for a trusted refinement,
+/// their 1-σ as the hand-eye uncertainty), then the usual calibration runs on it. A refinement that does
+/// not lower its robot's residuals keeps the cell's hand-eye; an untrusted one makes the calibration
+/// untrusted, with its reasons. Then, with `refine_hand_eye.joint`, both hand-eyes and `T_base1_base2`
+/// are refined together from there ([`refine_jointly`]); with `refine_hand_eye.adopt_joint_base` a
+/// trusted joint `T_base1_base2` (and its covariance) replaces the calibration's. Returns the calibration,
+/// its fused clouds and the refinements.
 pub fn calibrate_refining_hand_eyes(
     cell: &Cell,
     method: Method,
     inputs: &MethodInputs,
     cfg: &CalibrateConfig,
-    hand_eye: &HandEyeDepthConfig,
     refine: bool,
     progress: &mut dyn FnMut(&str),
-) -> Result<(Calibration, FusedCell, Vec<HandEyeDepthResult>)> {
+) -> Result<(Calibration, FusedCell, HandEyeRefinement)> {
+    cfg.validate()?;
+    let hand_eye = &cfg.refine_hand_eye.depth;
     let mut refined_cell = cell.clone();
     let mut results = Vec::with_capacity(cell.robots.len());
     for robot in &mut refined_cell.robots {
@@ -233,5 +248,31 @@ pub fn calibrate_refining_hand_eyes(
             }
         }
     }
-    Ok((c, fused, results))
+    let mut joint = None;
+    let mut adopted = false;
+    if cfg.refine_hand_eye.joint {
+        progress("refining both hand-eyes and the base-to-base transform together");
+        let (r, o) = robot_pair(&refined_cell)?;
+        let j = refine_jointly([r, o], &c.transform, &cfg.refine_hand_eye)?;
+        if cfg.refine_hand_eye.adopt_joint_base && j.trusted {
+            let truth = cell.ground_truth()?.and_then(|g| g.t_base1_base2);
+            c.transform = j.t_base1_base2;
+            c.covariance = j.base_covariance;
+            c.error_vs_truth = truth.map(|t| pose_error(&c.transform, &t));
+            c.normalised_error = truth.and_then(|t| {
+                crate::calibration::uncertainty::normalised_error(&c.transform, &t, &c.covariance)
+            });
+            adopted = true;
+        }
+        joint = Some(j);
+    }
+    Ok((
+        c,
+        fused,
+        HandEyeRefinement {
+            robots: results,
+            joint,
+            joint_base_adopted: adopted,
+        },
+    ))
 }

@@ -126,6 +126,10 @@ pub struct CalibrationReport {
     /// With `--refine-hand-eye`: each robot's hand-eye refined from its depth frames (absent otherwise).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub hand_eye_refinement: Option<Vec<super::HandEyeDepthReport>>,
+    /// With `--refine-hand-eye` (and `refine_hand_eye.joint`): both hand-eyes and `T_base1_base2` refined
+    /// together (absent otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub joint_hand_eye: Option<super::JointHandEyeReport>,
 }
 
 impl CalibrationReport {
@@ -184,6 +188,7 @@ impl CalibrationReport {
             timings_ms: Timings(c.timings_ms.clone()),
             total_ms,
             hand_eye_refinement: None,
+            joint_hand_eye: None,
         }
     }
 }

@@ -29,7 +29,9 @@ pub use capture::{
 pub use comparison::{ComparisonReport, COMPARISON_SCHEMA};
 pub use fusion::{FusionReport, FUSION_SCHEMA};
 pub use handeye::{HandEyeInputs, HandEyeReport, HANDEYE_SCHEMA};
-pub use handeye_depth::{HandEyeDepthReport, HANDEYE_DEPTH_SCHEMA};
+pub use handeye_depth::{
+    HandEyeDepthReport, JointHandEyeReport, HANDEYE_DEPTH_SCHEMA, HANDEYE_JOINT_SCHEMA,
+};
 pub use intrinsics::{IntrinsicsReport, INTRINSICS_SCHEMA};
 pub use markers::{MarkerImageReport, MarkersReport, MARKERS_SCHEMA};
 pub use matching::{MatchReport, MATCH_SCHEMA};

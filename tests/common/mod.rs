@@ -146,10 +146,16 @@ pub mod foreign;
 /// (the `schema` field), and that the section lists no field the report lacks.
 pub fn assert_documented(v: &serde_json::Value) {
     let schema = v["schema"].as_str().expect("a report names its schema");
+    assert_documented_section(v, schema, "");
+}
+
+/// [`assert_documented`] for an object documented in its own section of docs/json.md, `## \`SCHEMA\`
+/// SUFFIX` (e.g. the entries of a list inside a report).
+pub fn assert_documented_section(v: &serde_json::Value, schema: &str, suffix: &str) {
     let doc =
         std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("docs/json.md"))
             .unwrap();
-    let head = format!("## `{schema}`");
+    let head = format!("## `{schema}`{suffix}");
     let start = doc
         .find(&head)
         .unwrap_or_else(|| panic!("docs/json.md has no {head}"));

@@ -23,6 +23,7 @@
 //! named in words, with the flange motion that explains them (no rotation: the translation is free; one
 //! rotation axis: the translation along it is free).
 
+pub mod joint;
 pub mod observe;
 pub mod plan;
 pub(crate) mod residuals;
@@ -175,7 +176,7 @@ impl HandEyeDepthConfig {
         Ok(())
     }
 
-    fn consistency(&self) -> ConsistencyConfig {
+    pub(crate) fn consistency(&self) -> ConsistencyConfig {
         ConsistencyConfig {
             sample_points: self.sample_points,
             block: self.block,
@@ -288,7 +289,7 @@ fn solve(
 }
 
 /// The per-frame residual medians (metres) and test counts.
-fn frame_stats(sums: &mut [FrameSums]) -> Vec<(f64, usize)> {
+pub(crate) fn frame_stats(sums: &mut [FrameSums]) -> Vec<(f64, usize)> {
     sums.iter_mut()
         .map(|s| {
             let n = s.abs.len();
@@ -363,6 +364,31 @@ impl Solver<'_> {
         (x, iterations, converged)
     }
 
+    /// [`Self::levels`] from `x0`, then again from `x0` with the directions the covariance leaves weak
+    /// frozen (they keep the cell's value instead of absorbing pose errors). Returns the hand-eye, the
+    /// iterations, whether the last step was negligible and the covariance.
+    fn solve_freezing_weak(
+        &self,
+        x0: &Isometry3<f64>,
+    ) -> (Isometry3<f64>, usize, bool, Matrix6<f64>) {
+        let (cfg, l) = (self.cfg, self.l);
+        let (mut x, mut iterations, mut converged) = self.levels(x0, &[]);
+        let mut cov = self.covariance(&x).0;
+        let weak_limit = (cfg.weak_sigma_mm * 1e-3).min(cfg.weak_sigma_deg.to_radians() * l);
+        let frozen: Vec<Vector6<f64>> = directions(&cov, l)
+            .into_iter()
+            .filter(|(_, sd)| *sd > weak_limit)
+            .map(|(v, _)| v)
+            .collect();
+        if !frozen.is_empty() {
+            let (x2, it2, c2) = self.levels(x0, &frozen);
+            (x, converged) = (x2, c2);
+            iterations += it2;
+            cov = self.covariance(&x).0;
+        }
+        (x, iterations, converged, cov)
+    }
+
     /// The covariance of the hand-eye at `x` (see the module documentation), the tests and refused tests
     /// at the finest gate, and the frames with tests.
     fn covariance(&self, x: &Isometry3<f64>) -> (Matrix6<f64>, usize, usize, usize) {
@@ -415,93 +441,50 @@ impl Solver<'_> {
     }
 }
 
-/// Refines `robot.t_ee_cam` so that all its depth frames agree (see the module documentation). `views` are
-/// the robot's depth views (one per frame, e.g. a fused cloud's `views`); `None` reads the depth images.
-/// Errors: a bad configuration, fewer than `min_frames` frames, an unreadable depth image (named). An
-/// answer the poses do not support is returned untrusted with its reasons.
-pub fn refine_hand_eye_from_depth(
-    robot: &CellRobot,
-    views: Option<&[DepthView]>,
-    cfg: &HandEyeDepthConfig,
-) -> Result<HandEyeDepthResult> {
-    cfg.validate()?;
-    let n = robot.frames.len();
-    if n < cfg.min_frames {
-        return Err(Error::InvalidInput(format!(
-            "robot {}: {n} frames, the hand-eye from depth needs at least {} (frames from different flange \
-             orientations)",
-            robot.name, cfg.min_frames
-        )));
-    }
-    let ccfg = cfg.consistency();
-    let built: Vec<DepthView>;
-    let views: &[DepthView] = match views {
-        Some(v) if v.len() == n => v,
-        _ => {
-            built = (0..n)
-                .into_par_iter()
-                .map(|i| {
-                    robot.load_depth(i).map(|img| {
-                        DepthView::new(&img, &robot.intrinsics, &robot.t_base_cam(i), cfg.block)
-                    })
-                })
-                .collect::<Result<Vec<_>>>()?;
-            &built
-        }
-    };
-    let problem = Problem {
-        t_base_ee: robot.frames.iter().map(|f| f.t_base_ee).collect(),
-        views,
-        intr: &robot.intrinsics,
-        points: frame_points(views, &robot.intrinsics, &ccfg),
-        cfg: &ccfg,
-    };
-    let depths: Vec<f64> = problem
-        .points
+/// Each robot's depth views (one per frame) from its depth images.
+pub(crate) fn load_views(robot: &CellRobot, cfg: &HandEyeDepthConfig) -> Result<Vec<DepthView>> {
+    (0..robot.frames.len())
+        .into_par_iter()
+        .map(|i| {
+            robot
+                .load_depth(i)
+                .map(|img| DepthView::new(&img, &robot.intrinsics, &robot.t_base_cam(i), cfg.block))
+        })
+        .collect()
+}
+
+/// The range at which rotations are compared with translations: the median sample depth, metres (at least
+/// 5 cm; 0.5 m without samples).
+pub(crate) fn characteristic_range(points: &[residuals::FramePoints]) -> f64 {
+    let depths: Vec<f64> = points
         .iter()
         .flat_map(|f| f.points.iter().map(|p| p.z))
         .collect();
-    let l = if depths.is_empty() {
+    if depths.is_empty() {
         0.5
     } else {
         median(&depths)
     }
-    .max(0.05);
-    let assoc = |gate: f64| Association {
+    .max(0.05)
+}
+
+/// The association settings at one gate.
+pub(crate) fn association(cfg: &HandEyeDepthConfig, gate: f64) -> Association {
+    Association {
         gate_m: gate,
         min_normal_cos: cfg.max_normal_angle_deg.to_radians().cos(),
         kernel: cfg.kernel,
         kernel_sigmas: cfg.kernel_sigmas,
-    };
-    let report_gate = assoc(cfg.gates_m[0]);
-    let x0 = robot.t_ee_cam;
-    let before = frame_stats(&mut problem.sums(&x0, &report_gate));
-
-    let solver = Solver {
-        problem: &problem,
-        cfg,
-        l,
-        assoc: &assoc,
-    };
-    let (mut x, mut iterations, mut converged) = solver.levels(&x0, &[]);
-    let mut cov = solver.covariance(&x).0;
-    // Directions the data constrain poorly keep the cell's value: solved again without them.
-    let weak_limit = (cfg.weak_sigma_mm * 1e-3).min(cfg.weak_sigma_deg.to_radians() * l);
-    let frozen: Vec<Vector6<f64>> = directions(&cov, l)
-        .into_iter()
-        .filter(|(_, sd)| *sd > weak_limit)
-        .map(|(v, _)| v)
-        .collect();
-    if !frozen.is_empty() {
-        let (x2, it2, c2) = solver.levels(&x0, &frozen);
-        (x, converged) = (x2, c2);
-        iterations += it2;
-        cov = solver.covariance(&x).0;
     }
-    let (_, tests, wrong_side, frames_with_tests) = solver.covariance(&x);
-    let after = frame_stats(&mut problem.sums(&x, &report_gate));
+}
 
-    let motion = flange_motion(&problem.t_base_ee, &x0);
+/// Each of the six hand-eye parameters' 1-σ and status under `cov` (camera frame), and the weak
+/// directions in words.
+pub(crate) fn observability(
+    cov: &Matrix6<f64>,
+    l: f64,
+    cfg: &HandEyeDepthConfig,
+) -> (Vec<DofObservability>, Vec<WeakDirection>) {
     let names = ["rx", "ry", "rz", "tx", "ty", "tz"];
     let dofs: Vec<DofObservability> = (0..6)
         .map(|d| {
@@ -525,7 +508,7 @@ pub fn refine_hand_eye_from_depth(
             }
         })
         .collect();
-    let weak_directions: Vec<WeakDirection> = directions(&cov, l)
+    let weak_directions: Vec<WeakDirection> = directions(cov, l)
         .into_iter()
         .filter(|(_, sd)| *sd > (cfg.weak_sigma_mm * 1e-3).min(cfg.weak_sigma_deg.to_radians() * l))
         .map(|(v, sd)| WeakDirection {
@@ -539,7 +522,16 @@ pub fn refine_hand_eye_from_depth(
             },
         })
         .collect();
+    (dofs, weak_directions)
+}
 
+/// The per-frame residuals before and after (pose-file order) and their medians over the frames with
+/// tests, metres.
+pub(crate) fn frame_residuals(
+    robot: &CellRobot,
+    before: &[(f64, usize)],
+    after: &[(f64, usize)],
+) -> (Vec<FrameDepthResidual>, f64, f64) {
     let frames: Vec<FrameDepthResidual> = robot
         .frames
         .iter()
@@ -563,10 +555,19 @@ pub fn refine_hand_eye_from_depth(
     };
     let median_before_m = judged(&|f| (f.before_m, f.tests_before));
     let median_after_m = judged(&|f| (f.after_m, f.tests_after));
-    let change = x0.inverse() * x;
+    (frames, median_before_m, median_after_m)
+}
 
-    let mut reasons = Vec::new();
-    let mut suggestions = Vec::new();
+/// The reason (and suggestion) when some of a robot's hand-eye parameters are not observable, with the
+/// flange motion that explains it.
+pub(crate) fn observability_reasons(
+    robot: &str,
+    dofs: &[DofObservability],
+    weak_directions: &[WeakDirection],
+    motion: &FlangeMotion,
+    reasons: &mut Vec<String>,
+    suggestions: &mut Vec<String>,
+) {
     let motion_words = if motion.max_rotation_deg < 1.0 {
         format!(
             "the flange did not rotate between the frames (largest rotation {:.2}°): pure translations leave \
@@ -599,7 +600,7 @@ pub fn refine_hand_eye_from_depth(
             .collect();
         reasons.push(format!(
             "robot {}: the poses do not determine the whole hand-eye: {}{}",
-            robot.name,
+            robot,
             if list.is_empty() {
                 "some parameters have a large 1-σ".to_string()
             } else {
@@ -617,6 +618,73 @@ pub fn refine_hand_eye_from_depth(
                 .into(),
         );
     }
+}
+
+/// Refines `robot.t_ee_cam` so that all its depth frames agree (see the module documentation). `views` are
+/// the robot's depth views (one per frame, e.g. a fused cloud's `views`); `None` reads the depth images.
+/// Errors: a bad configuration, fewer than `min_frames` frames, an unreadable depth image (named). An
+/// answer the poses do not support is returned untrusted with its reasons.
+pub fn refine_hand_eye_from_depth(
+    robot: &CellRobot,
+    views: Option<&[DepthView]>,
+    cfg: &HandEyeDepthConfig,
+) -> Result<HandEyeDepthResult> {
+    cfg.validate()?;
+    let n = robot.frames.len();
+    if n < cfg.min_frames {
+        return Err(Error::InvalidInput(format!(
+            "robot {}: {n} frames, the hand-eye from depth needs at least {} (frames from different flange \
+             orientations)",
+            robot.name, cfg.min_frames
+        )));
+    }
+    let ccfg = cfg.consistency();
+    let built: Vec<DepthView>;
+    let views: &[DepthView] = match views {
+        Some(v) if v.len() == n => v,
+        _ => {
+            built = load_views(robot, cfg)?;
+            &built
+        }
+    };
+    let problem = Problem {
+        t_base_ee: robot.frames.iter().map(|f| f.t_base_ee).collect(),
+        views,
+        intr: &robot.intrinsics,
+        points: frame_points(views, &robot.intrinsics, &ccfg),
+        cfg: &ccfg,
+    };
+    let l = characteristic_range(&problem.points);
+    let assoc = |gate: f64| association(cfg, gate);
+    let report_gate = assoc(cfg.gates_m[0]);
+    let x0 = robot.t_ee_cam;
+    let before = frame_stats(&mut problem.sums(&x0, &report_gate));
+
+    let solver = Solver {
+        problem: &problem,
+        cfg,
+        l,
+        assoc: &assoc,
+    };
+    let (x, iterations, converged, cov) = solver.solve_freezing_weak(&x0);
+    let (_, tests, wrong_side, frames_with_tests) = solver.covariance(&x);
+    let after = frame_stats(&mut problem.sums(&x, &report_gate));
+
+    let motion = flange_motion(&problem.t_base_ee, &x0);
+    let (dofs, weak_directions) = observability(&cov, l, cfg);
+    let (frames, median_before_m, median_after_m) = frame_residuals(robot, &before, &after);
+    let change = x0.inverse() * x;
+
+    let mut reasons = Vec::new();
+    let mut suggestions = Vec::new();
+    observability_reasons(
+        &robot.name,
+        &dofs,
+        &weak_directions,
+        &motion,
+        &mut reasons,
+        &mut suggestions,
+    );
     if frames_with_tests < cfg.min_frames {
         reasons.push(format!(
             "robot {}: only {frames_with_tests} frames overlap the others",

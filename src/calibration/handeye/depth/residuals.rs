@@ -45,7 +45,7 @@ pub(crate) fn surface_at(
     Some((p, if n.dot(&p) > 0.0 { -n } else { n }))
 }
 
-fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+pub(crate) fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
 }
 
