@@ -6,8 +6,7 @@ use crate::pool;
 use crate::register::to_json;
 use depthcal::calibration::initializer::UserGuess;
 use depthcal::calibration::robot_to_robot::{
-    calibrate_request, robot_pair, CalibrateConfig, CalibrateRequest,
-    Calibration,
+    calibrate_request, robot_pair, CalibrateConfig, CalibrateRequest, Calibration,
 };
 use depthcal::cell::Cell;
 use depthcal::geometry::robot_formats::{ros2_static_tf_command, transform_files, Frames};
