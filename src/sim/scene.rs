@@ -813,7 +813,8 @@ impl Scene {
             }
             if !done {
                 log::warn!(
-                    "scene: no room for object {i} ({kind:?}) within {r_ws} m of the table centre; {} objects placed",
+                    "scene: no room for object {i} ({kind:?}) within {r_ws} m of the table centre; it is left out \
+                     ({} of the objects before it placed)",
                     objects.len()
                 );
             }
