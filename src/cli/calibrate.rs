@@ -12,7 +12,7 @@ use depthcal::geometry::robot_formats::{
 };
 use depthcal::methods::run::HandEyeRefinement;
 use depthcal::methods::{calibrate_refining_hand_eyes, calibrate_with_method};
-use depthcal::report::handeye_depth::true_hand_eye;
+use depthcal::report::handeye_depth::{true_hand_eye, HandEyeTruthReport};
 use depthcal::report::CalibrationReport;
 use depthcal::report::{HandEyeDepthReport, JointHandEyeReport};
 use std::path::{Path, PathBuf};
@@ -438,18 +438,20 @@ fn print_hand_eye(h: &HandEyeDepthReport) {
         h.change_size.translation_m * 1e3,
         h.median_residual_before_m * 1e3,
         h.median_residual_after_m * 1e3,
-        h.error_vs_truth
-            .as_ref()
-            .map(|e| format!(
-                "; vs truth {:.3} deg / {:.2} mm -> {:.3} deg / {:.2} mm",
-                e.before.rotation_deg,
-                e.before.translation_m * 1e3,
-                e.after.rotation_deg,
-                e.after.translation_m * 1e3
-            ))
-            .unwrap_or_default(),
+        h.error_vs_truth.as_ref().map(vs_truth).unwrap_or_default(),
         if h.trusted { "" } else { " (NOT trusted)" }
     );
+}
+
+/// A hand-eye's error against the cell's ground truth before and after its refinement, as a suffix.
+fn vs_truth(e: &HandEyeTruthReport) -> String {
+    format!(
+        "; vs truth {:.3} deg / {:.2} mm -> {:.3} deg / {:.2} mm",
+        e.before.rotation_deg,
+        e.before.translation_m * 1e3,
+        e.after.rotation_deg,
+        e.after.translation_m * 1e3
+    )
 }
 
 /// Both hand-eyes and the base-to-base transform refined together (`--refine-hand-eye`).
@@ -462,16 +464,7 @@ fn print_joint(j: &JointHandEyeReport) {
             r.change_size.translation_m * 1e3,
             r.median_residual_before_m * 1e3,
             r.median_residual_after_m * 1e3,
-            r.error_vs_truth
-                .as_ref()
-                .map(|e| format!(
-                    "; vs truth {:.3} deg / {:.2} mm -> {:.3} deg / {:.2} mm",
-                    e.before.rotation_deg,
-                    e.before.translation_m * 1e3,
-                    e.after.rotation_deg,
-                    e.after.translation_m * 1e3
-                ))
-                .unwrap_or_default()
+            r.error_vs_truth.as_ref().map(vs_truth).unwrap_or_default()
         );
     }
     println!(
