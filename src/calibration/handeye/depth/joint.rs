@@ -22,7 +22,9 @@
 //! vocabulary; the base-to-base covariance is reported as a left increment in base1 (like calibrate's).
 
 use super::observe::{DofObservability, WeakDirection};
-use super::residuals::{frame_points, skew, surface_at, Association, FramePoints, Problem};
+use super::residuals::{
+    frame_points, skew, test_point, Association, FramePoints, PointTest, Problem, Target,
+};
 use super::{
     association, characteristic_range, frame_residuals, frame_stats, load_views, observability,
     observability_reasons, FrameDepthResidual, HandEyeDepthConfig,
@@ -328,8 +330,7 @@ impl Joint<'_> {
         let xb_inv = s.x[b].inverse();
         // Maps robot a's base into robot b's: T_base1_base2 from 2 to 1, its inverse from 1 to 2.
         let m = if a == 1 { s.b } else { s.b.inverse() };
-        let (w, h) = (pb.intr.width as f64, pb.intr.height as f64);
-        let ccfg = pa.cfg;
+        let size = (pb.intr.width as f64, pb.intr.height as f64);
         (0..pa.views.len())
             .into_par_iter()
             .map(|i| {
@@ -352,44 +353,38 @@ impl Joint<'_> {
                     } else {
                         *cam_b_base_b.rotation.to_rotation_matrix().matrix()
                     };
-                    let view = &pb.views[j];
+                    let target = Target {
+                        view: &pb.views[j],
+                        intr: pb.intr,
+                        cfg: pb.cfg,
+                        size,
+                    };
+                    // Cross-robot tests only away from depth edges and where the surface is flat.
+                    let accept = |u: f64, v: f64, pj: &Vector3<f64>, nj: &Vector3<f64>| {
+                        away_from_edges(target.view, u, v, self.cross_edge_blocks, pb.cfg)
+                            && (self.cross_max_bend_m <= 0.0
+                                || bend_at(target.view, pb.intr, u, v, pj, nj, pb.cfg)
+                                    .is_some_and(|d| d <= self.cross_max_bend_m))
+                    };
                     for (k, (p, np)) in fp.points.iter().zip(&fp.normals).enumerate() {
                         if !ok[k] {
                             continue;
                         }
                         let q = r * p + tv;
-                        if q.z <= 1e-3 {
-                            continue;
-                        }
-                        let [u, v] = pb.intr.project([q.x, q.y, q.z]);
-                        if !(u >= -0.5 && v >= -0.5 && u < w - 0.5 && v < h - 0.5) {
-                            continue;
-                        }
-                        let Some((pj, nj)) = surface_at(view, pb.intr, u, v, pb.cfg) else {
-                            continue;
-                        };
-                        let res = nj.dot(&(q - pj));
-                        if res.abs() > asn.gate_m {
-                            continue;
-                        }
-                        if !away_from_edges(view, u, v, self.cross_edge_blocks, pb.cfg) {
-                            continue;
-                        }
-                        if self.cross_max_bend_m > 0.0
-                            && !bend_at(view, pb.intr, u, v, &pj, &nj, pb.cfg)
-                                .is_some_and(|d| d <= self.cross_max_bend_m)
-                        {
-                            continue;
-                        }
-                        let ni = r * np;
-                        if ni.dot(&nj) < asn.min_normal_cos || ni.dot(&q) > 0.0 {
-                            out.wrong_side += 1;
-                            continue;
-                        }
-                        let sigma = (ccfg.sigma(p.z).powi(2) + pb.cfg.sigma(pj.z).powi(2))
-                            .sqrt()
-                            .max(1e-5);
-                        let wk = asn.kernel.weight(res / sigma, asn.kernel_sigmas);
+                        let (nj, res, sigma, wk) =
+                            match test_point(&target, pa.cfg, asn, &r, (p, np), &q, accept) {
+                                PointTest::Miss => continue,
+                                PointTest::WrongSide => {
+                                    out.wrong_side += 1;
+                                    continue;
+                                }
+                                PointTest::Hit {
+                                    nj,
+                                    res,
+                                    sigma,
+                                    weight,
+                                } => (nj, res, sigma, weight),
+                            };
                         // dq/dδa = R·[−[p]×, I]; dq/dδb = [[q]×, −I].
                         let ja_w = nj.transpose() * (-r * skew(p));
                         let ja_v = nj.transpose() * r;

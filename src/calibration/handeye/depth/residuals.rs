@@ -119,12 +119,83 @@ pub(crate) struct Problem<'a> {
     pub(crate) cfg: &'a ConsistencyConfig,
 }
 
+/// One camera's depth, as points are tested against it.
+pub(crate) struct Target<'a> {
+    pub(crate) view: &'a DepthView,
+    pub(crate) intr: &'a Intrinsics,
+    pub(crate) cfg: &'a ConsistencyConfig,
+    /// Image width and height, pixels.
+    pub(crate) size: (f64, f64),
+}
+
+/// What a point of one frame finds in another camera's depth.
+pub(crate) enum PointTest {
+    /// Behind the camera, outside the image, no smooth surface there, beyond the gate, or refused.
+    Miss,
+    /// Refused by the side-of-surface rule.
+    WrongSide,
+    /// A test: the surface's unit normal `nj`, the point-to-plane residual (m), its 1-σ (m) and the
+    /// robust kernel's weight.
+    Hit {
+        nj: Vector3<f64>,
+        res: f64,
+        sigma: f64,
+        weight: f64,
+    },
+}
+
+/// Tests point `p` with normal `np` (its own camera, metres), already moved into the target camera as `q`
+/// by a rotation `r`: projective association, the residual gate, then `accept(u, v, surface point,
+/// surface normal)`, then the side-of-surface rule. `point_cfg` gives the point's own depth noise.
+#[inline]
+pub(crate) fn test_point(
+    t: &Target,
+    point_cfg: &ConsistencyConfig,
+    asn: &Association,
+    r: &Matrix3<f64>,
+    (p, np): (&Vector3<f64>, &Vector3<f64>),
+    q: &Vector3<f64>,
+    accept: impl Fn(f64, f64, &Vector3<f64>, &Vector3<f64>) -> bool,
+) -> PointTest {
+    if q.z <= 1e-3 {
+        return PointTest::Miss;
+    }
+    let [u, v] = t.intr.project([q.x, q.y, q.z]);
+    let (w, h) = t.size;
+    if !(u >= -0.5 && v >= -0.5 && u < w - 0.5 && v < h - 0.5) {
+        return PointTest::Miss;
+    }
+    let Some((pj, nj)) = surface_at(t.view, t.intr, u, v, t.cfg) else {
+        return PointTest::Miss;
+    };
+    let res = nj.dot(&(q - pj));
+    if res.abs() > asn.gate_m || !accept(u, v, &pj, &nj) {
+        return PointTest::Miss;
+    }
+    // Side of surface: the point's surface, seen from the target camera, must face it as the surface that
+    // camera saw does.
+    let ni = r * np;
+    if ni.dot(&nj) < asn.min_normal_cos || ni.dot(q) > 0.0 {
+        return PointTest::WrongSide;
+    }
+    let sigma = (point_cfg.sigma(p.z).powi(2) + t.cfg.sigma(pj.z).powi(2))
+        .sqrt()
+        .max(1e-5);
+    let weight = asn.kernel.weight(res / sigma, asn.kernel_sigmas);
+    PointTest::Hit {
+        nj,
+        res,
+        sigma,
+        weight,
+    }
+}
+
 impl Problem<'_> {
     /// The per-frame sums under hand-eye `x` (frame order, deterministic at any thread count).
     pub(crate) fn sums(&self, x: &Isometry3<f64>, a: &Association) -> Vec<FrameSums> {
         let n = self.views.len();
         let x_inv = x.inverse();
-        let (w, h) = (self.intr.width as f64, self.intr.height as f64);
+        let size = (self.intr.width as f64, self.intr.height as f64);
         (0..n)
             .into_par_iter()
             .map(|i| {
@@ -139,34 +210,30 @@ impl Problem<'_> {
                     let r = *t.rotation.to_rotation_matrix().matrix();
                     let tv = t.translation.vector;
                     let r_minus_i = r - Matrix3::identity();
-                    let view = &self.views[j];
+                    let target = Target {
+                        view: &self.views[j],
+                        intr: self.intr,
+                        cfg: self.cfg,
+                        size,
+                    };
                     for (k, (p, np)) in fp.points.iter().zip(&fp.normals).enumerate() {
                         let q = r * p + tv;
-                        if q.z <= 1e-3 {
-                            continue;
-                        }
-                        let [u, v] = self.intr.project([q.x, q.y, q.z]);
-                        if !(u >= -0.5 && v >= -0.5 && u < w - 0.5 && v < h - 0.5) {
-                            continue;
-                        }
-                        let Some((pj, nj)) = surface_at(view, self.intr, u, v, self.cfg) else {
-                            continue;
-                        };
-                        let res = nj.dot(&(q - pj));
-                        if res.abs() > a.gate_m {
-                            continue;
-                        }
-                        // Side of surface: the point's surface, seen from camera j, must face it as the
-                        // surface camera j saw does.
-                        let ni = r * np;
-                        if ni.dot(&nj) < a.min_normal_cos || ni.dot(&q) > 0.0 {
-                            s.wrong_side += 1;
-                            continue;
-                        }
-                        let sigma = (self.cfg.sigma(p.z).powi(2) + self.cfg.sigma(pj.z).powi(2))
-                            .sqrt()
-                            .max(1e-5);
-                        let wk = a.kernel.weight(res / sigma, a.kernel_sigmas);
+                        let (nj, res, sigma, wk) =
+                            match test_point(&target, self.cfg, a, &r, (p, np), &q, |_, _, _, _| {
+                                true
+                            }) {
+                                PointTest::Miss => continue,
+                                PointTest::WrongSide => {
+                                    s.wrong_side += 1;
+                                    continue;
+                                }
+                                PointTest::Hit {
+                                    nj,
+                                    res,
+                                    sigma,
+                                    weight,
+                                } => (nj, res, sigma, weight),
+                            };
                         let jw = nj.transpose() * (skew(&q) - r * skew(p));
                         let jv = nj.transpose() * r_minus_i;
                         let jrow = RowVector6::new(jw[0], jw[1], jw[2], jv[0], jv[1], jv[2]);
