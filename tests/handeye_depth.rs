@@ -300,9 +300,23 @@ fn calibrate_refine_hand_eye_repairs_the_base_to_base_transform() {
         set_hand_eye(&dir, k, truth * perturbation(60 + k as u64, mm, deg));
     }
     let d = dir.display().to_string();
-    let (_, out, err) = depthcal(&["calibrate", &d, "--json"]);
+    let (plain_code, out, err) = depthcal(&["calibrate", &d, "--json"]);
     let plain: serde_json::Value = serde_json::from_str(&out).unwrap_or_else(|_| panic!("{err}"));
     assert!(plain.get("hand_eye_refinement").is_none());
+    // Today's calibrate says its hand-eyes disagree with the depth instead of exiting 0.
+    assert_eq!(plain_code, 3, "{err}");
+    for h in plain["hand_eye_check"].as_array().unwrap() {
+        assert_documented_section(h, "depthcal.calibration/1", " hand-eye check entries");
+        assert_eq!(h["consistent"], false, "{h}");
+    }
+    assert!(
+        plain["reasons"].as_array().unwrap().iter().any(|r| r
+            .as_str()
+            .unwrap()
+            .contains("disagrees with its own depth frames")),
+        "{}",
+        plain["reasons"]
+    );
     let (code, out, err) = depthcal(&["calibrate", &d, "--refine-hand-eye", "--json"]);
     let refined: serde_json::Value = serde_json::from_str(&out).unwrap_or_else(|_| panic!("{err}"));
     assert_documented(&refined);
@@ -340,6 +354,64 @@ fn calibrate_refine_hand_eye_repairs_the_base_to_base_transform() {
     }
     assert_eq!(j["base_adopted"], false);
     assert!(j["cross_tests"].as_u64().unwrap() > 1000, "{j}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `calibrate` checks each stated hand-eye against its robot's depth: the true ones agree; one 2 mm / 0.4°
+/// off with the default 1-σ disagrees (exit 3, the robot named; the frames' own consistency check does not
+/// see this small an error); the same with that uncertainty stated in cell.toml agrees, and the result's
+/// 1-σ then covers its error.
+#[test]
+fn stated_hand_eyes_are_checked_against_the_depth() {
+    use depthcal::calibration::handeye::depth::check::{check_hand_eye, HandEyeCheckConfig};
+    let dir = sim_cell("hed-check", 8, 12, |_| {});
+    let d = dir.display().to_string();
+    let cfg = HandEyeCheckConfig::default();
+    let cell = Cell::open(&dir).unwrap();
+    for r in &cell.robots {
+        let h = check_hand_eye(r, None, &cfg).unwrap();
+        eprintln!("true hand-eye: {h:?}");
+        assert!(h.checked && h.consistent && !h.sigma_stated, "{h:?}");
+        assert!(h.distance_sigmas < 3.0, "{h:?}");
+    }
+    let gt = cell.ground_truth().unwrap().unwrap();
+    let name = cell.robots[1].name.clone();
+    let truth = true_hand_eye(&gt, &name).unwrap();
+    set_hand_eye(&dir, 1, truth * perturbation(5, 2.0, 0.4));
+    let h = check_hand_eye(&Cell::open(&dir).unwrap().robots[1], None, &cfg).unwrap();
+    eprintln!("2 mm / 0.4° off: {h:?}");
+    assert!(h.checked && !h.consistent, "{h:?}");
+    let (code, out, err) = depthcal(&["calibrate", &d, "--json"]);
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap_or_else(|_| panic!("{err}"));
+    assert_eq!(code, 3, "{err}");
+    let checks = v["hand_eye_check"].as_array().unwrap();
+    assert_eq!(checks[0]["consistent"], true, "{}", checks[0]);
+    assert_eq!(checks[1]["consistent"], false, "{}", checks[1]);
+    let reasons = v["reasons"].as_array().unwrap();
+    assert!(
+        reasons.iter().any(|r| r
+            .as_str()
+            .unwrap()
+            .starts_with(&format!("robot {name}'s hand-eye disagrees"))),
+        "{reasons:?}"
+    );
+    // Stating how uncertain the hand-eye is: consistent, and the covariance carries it.
+    let mut m = CellManifest::read(&dir).unwrap();
+    m.robots[1].hand_eye_sigma_deg = Some(0.4);
+    m.robots[1].hand_eye_sigma_mm = Some(2.0);
+    m.write(&dir).unwrap();
+    let (code, out, err) = depthcal(&["calibrate", &d, "--json"]);
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap_or_else(|_| panic!("{err}"));
+    let c = &v["hand_eye_check"][1];
+    assert_eq!(c["sigma_stated"], true, "{c}");
+    assert_eq!(c["consistent"], true, "{c}");
+    let ne = v["normalised_error"]["pose"].as_f64().unwrap();
+    eprintln!(
+        "stated 0.4° / 2 mm: exit {code}, error {} / NE {ne:.2}",
+        v["error_vs_truth"]
+    );
+    assert_eq!(code, 0, "{err}");
+    assert!(ne < 3.0, "{ne}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -54,6 +54,7 @@ use crate::camera::{DepthView, Intrinsics};
 use crate::cell::CellRobot;
 use crate::error::{Error, Result};
 use crate::fusion::FusedCloud;
+use crate::geometry::floor_i64;
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -384,8 +385,8 @@ pub(crate) fn view_depth(
 ) -> Option<(f64, f64)> {
     let b = view.block as f64;
     let (sw, sh) = (view.size[0] as i64, view.size[1] as i64);
-    let bu = ((u + 0.5) / b).floor() as i64;
-    let bv = ((v + 0.5) / b).floor() as i64;
+    let bu = floor_i64((u + 0.5) / b);
+    let bv = floor_i64((v + 0.5) / b);
     if bu < 0 || bv < 0 || bu >= sw || bv >= sh {
         return None;
     }
@@ -397,7 +398,7 @@ pub(crate) fn view_depth(
     // Block centres sit at block·b + (b − 1)/2.
     let fu = (u - (b - 1.0) * 0.5) / b;
     let fv = (v - (b - 1.0) * 0.5) / b;
-    let (iu, iv) = (fu.floor() as i64, fv.floor() as i64);
+    let (iu, iv) = (floor_i64(fu), floor_i64(fv));
     let (au, av) = (fu - iu as f64, fv - iv as f64);
     let mut mids = [0f64; 4];
     let mut ok = true;

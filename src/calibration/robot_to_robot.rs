@@ -2,6 +2,7 @@
 //! `T_base1_base2` from an [`Initializer`], refine it with trimmed robust ICP, and report its quality.
 
 use crate::calibration::consistency::{robot_consistency, ConsistencyConfig, RobotConsistency};
+use crate::calibration::handeye::depth::check::{check_hand_eye, HandEyeCheck, HandEyeCheckConfig};
 use crate::calibration::initializer::{sight, InitialGuess, Initializer, InitializerInput};
 use crate::calibration::priors::CellPriors;
 use crate::calibration::uncertainty::{
@@ -58,6 +59,9 @@ pub struct CalibrateConfig {
     /// hand-eyes with `T_base1_base2`, and whether its base-to-base transform is adopted
     /// (docs/handeye.md#hand-eye-from-depth).
     pub refine_hand_eye: crate::calibration::handeye::depth::joint::RefineHandEyeConfig,
+    /// The check of each robot's stated hand-eye (and its 1-σ) against its own depth frames
+    /// ([`crate::calibration::handeye::depth::check`]); an inconsistent one makes the result untrusted.
+    pub hand_eye_check: HandEyeCheckConfig,
 }
 
 impl Default for CalibrateConfig {
@@ -114,6 +118,7 @@ impl Default for CalibrateConfig {
             consistency: ConsistencyConfig::default(),
             max_range_factor: Some(2.5),
             refine_hand_eye: Default::default(),
+            hand_eye_check: HandEyeCheckConfig::default(),
         }
     }
 }
@@ -146,6 +151,7 @@ impl CalibrateConfig {
             crate::error::check::positive("max_range_factor", f)?;
         }
         self.refine_hand_eye.validate()?;
+        self.hand_eye_check.validate()?;
         Ok(())
     }
 }
@@ -209,6 +215,9 @@ pub struct Calibration {
     pub normalised_error: Option<NormalisedError>,
     /// Each robot's own frames against each other (reference, other), when the clouds were fused.
     pub consistency: Vec<RobotConsistency>,
+    /// Each robot's stated hand-eye against its own depth frames (reference, other), when the clouds were
+    /// fused and `hand_eye_check.enabled`.
+    pub hand_eye_checks: Vec<HandEyeCheck>,
     /// The refinement's ICP levels, coarse to fine, with each iteration's residuals (metres) and inliers
     /// (empty when not refined).
     pub icp_levels: Vec<crate::registration::IcpLevelTrace>,
@@ -258,6 +267,11 @@ pub struct FusedCell {
     pub priors: CellPriors,
     /// Wall time of the fusion, milliseconds.
     pub fuse_ms: f64,
+    /// Each robot's stated hand-eye against its own depth frames (reference, other; empty when
+    /// `hand_eye_check.enabled` is off).
+    pub hand_eye_checks: Vec<HandEyeCheck>,
+    /// Wall time of those checks, milliseconds.
+    pub hand_eye_check_ms: f64,
 }
 
 impl FusedCell {
@@ -268,6 +282,8 @@ impl FusedCell {
             other: FusedCloud::default(),
             priors: read_priors(cell, cfg)?,
             fuse_ms: 0.0,
+            hand_eye_checks: Vec::new(),
+            hand_eye_check_ms: 0.0,
         })
     }
 }
@@ -281,7 +297,8 @@ fn read_priors(cell: &Cell, cfg: &CalibrateConfig) -> Result<CellPriors> {
     }
 }
 
-/// Fuses both robots' frames in their own base frames (in parallel), and reads the priors.
+/// Fuses both robots' frames in their own base frames (in parallel), reads the priors, and checks each
+/// robot's hand-eye against its depth frames (`cfg.hand_eye_check`).
 pub fn fuse_cell(cell: &Cell, cfg: &CalibrateConfig) -> Result<FusedCell> {
     let t0 = Instant::now();
     let (reference, other) = robot_pair(cell)?;
@@ -304,11 +321,28 @@ pub fn fuse_cell(cell: &Cell, cfg: &CalibrateConfig) -> Result<FusedCell> {
             }
         }
     }
+    let fuse_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let t1 = Instant::now();
+    let hand_eye_checks = if cfg.hand_eye_check.enabled {
+        let check = |r: &CellRobot, c: &FusedCloud| {
+            let views = (!c.views.is_empty()).then_some(c.views.as_slice());
+            check_hand_eye(r, views, &cfg.hand_eye_check)
+        };
+        let (a, b) = rayon::join(
+            || check(reference, &ref_cloud),
+            || check(other, &other_cloud),
+        );
+        vec![a?, b?]
+    } else {
+        Vec::new()
+    };
     Ok(FusedCell {
         reference: ref_cloud,
         other: other_cloud,
         priors,
-        fuse_ms: t0.elapsed().as_secs_f64() * 1e3,
+        fuse_ms,
+        hand_eye_checks,
+        hand_eye_check_ms: t1.elapsed().as_secs_f64() * 1e3,
     })
 }
 
@@ -427,6 +461,10 @@ pub fn calibrate_request(req: CalibrateRequest) -> Result<(Calibration, FusedCel
     let mut c = refine_cell(cell, &fused, initializer, cfg, refine, progress)?;
     if fuse {
         c.timings_ms.insert(0, ("fuse".into(), fused.fuse_ms));
+        if !fused.hand_eye_checks.is_empty() {
+            c.timings_ms
+                .insert(1, ("hand_eye_check".into(), fused.hand_eye_check_ms));
+        }
     }
     Ok((c, fused))
 }
@@ -485,6 +523,7 @@ pub fn refine_cell(
         inputs_covariance: Matrix6::zeros(),
         normalised_error: None,
         consistency: Vec::new(),
+        hand_eye_checks: fused.hand_eye_checks.clone(),
         icp_levels: Vec::new(),
     };
     if !ref_cloud.views.is_empty() && !other_cloud.views.is_empty() {
@@ -598,6 +637,9 @@ fn calibration_trust(
                 r.robot
             ),
         );
+    }
+    for h in c.hand_eye_checks.iter().filter(|h| !h.consistent) {
+        t.fail(h.reason(), h.suggestion());
     }
     if let Some(a) = &c.ambiguity {
         t.fail(

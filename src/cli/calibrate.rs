@@ -512,8 +512,30 @@ fn print_truth(c: &Calibration) {
     }
 }
 
-/// The independent checks (free space, ambiguity) and the trust verdict with its reasons.
+/// The independent checks (hand-eyes, free space, ambiguity) and the trust verdict with its reasons.
 fn print_checks(c: &Calibration) {
+    for h in &c.hand_eye_checks {
+        if h.checked {
+            println!(
+                "hand-eye {:<7}{} with its depth: it asks for {:.3} deg / {:.2} mm, {:.1} sigma of 1-sigma {:.3} deg / {:.2} mm ({}) and the fit's (limit {:.1})",
+                h.robot,
+                if h.consistent { "agrees" } else { "DISAGREES" },
+                h.change_deg,
+                h.change_mm,
+                h.distance_sigmas,
+                h.sigma_deg,
+                h.sigma_mm,
+                if h.sigma_stated { "stated" } else { "default" },
+                h.max_distance_sigmas
+            );
+        } else {
+            println!(
+                "hand-eye {:<7}not checked: {}",
+                h.robot,
+                h.note.as_deref().unwrap_or("")
+            );
+        }
+    }
     if let Some(f) = &c.free_space {
         println!(
             "free space      {:.1}% of the surfaces violate the other robot's views (own frames {:.1}%, margin {:.0} mm)",

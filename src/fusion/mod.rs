@@ -15,7 +15,7 @@
 use crate::camera::depth::{check_size, deproject_row};
 use crate::camera::{DeprojectConfig, DepthImage, DepthView, Intrinsics, RayTable};
 use crate::error::{Error, Result};
-use crate::geometry::PointCloud;
+use crate::geometry::{floor_i64, PointCloud};
 use crate::index::KdIndex;
 use crate::preprocess::normals::{estimate_normals, NormalConfig};
 use crate::preprocess::outlier::{statistical_inliers, OutlierConfig};
@@ -283,17 +283,6 @@ const KEY_OFFSET: i64 = 1 << (KEY_BITS - 1);
 const SHARD_BITS: u32 = 6;
 const CACHE_BITS: u32 = 13;
 const EMPTY: u64 = u64::MAX;
-
-/// `floor(x)` as an integer without a libm call (x86-64 without SSE4.1 has no floor instruction).
-#[inline(always)]
-fn floor_i64(x: f64) -> i64 {
-    let t = x as i64;
-    if (t as f64) > x {
-        t - 1
-    } else {
-        t
-    }
-}
 
 /// `round(x)` (half away from zero) as an integer without a libm call.
 #[inline(always)]

@@ -235,8 +235,11 @@ pub fn calibrate_refining_hand_eyes(
         }
         results.push(r);
     }
+    // The refined hand-eyes are what the depth says: the check of the stated ones does not apply.
+    let mut ccfg = cfg.clone();
+    ccfg.hand_eye_check.enabled = false;
     let (mut c, fused) =
-        calibrate_with_method(&refined_cell, method, inputs, cfg, refine, progress)?;
+        calibrate_with_method(&refined_cell, method, inputs, &ccfg, refine, progress)?;
     for r in &results {
         if !r.trusted {
             c.trust.trusted = false;

@@ -2,6 +2,7 @@
 
 use super::pose::{matrix6_rows, AmbiguityReport, ErrorReport, PoseReport, SigmaReport, Timings};
 use crate::calibration::consistency::RobotConsistency;
+use crate::calibration::handeye::depth::check::HandEyeCheck;
 use crate::calibration::robot_to_robot::{Calibration, FreeSpaceCheck};
 use crate::calibration::uncertainty::NormalisedError;
 use crate::geometry::robot_formats::{ros2_static_tf_command, Frames};
@@ -107,6 +108,8 @@ pub struct CalibrationReport {
     pub normalised_error: Option<NormalisedError>,
     /// Each robot's own frames against each other.
     pub consistency: Vec<RobotConsistency>,
+    /// Each robot's stated hand-eye and its 1-σ against its own depth frames.
+    pub hand_eye_check: Vec<HandEyeCheck>,
     /// The part of the covariance the cell's inputs add (hand-eyes, pose repeatability, depth scale).
     pub inputs_covariance: [[f64; 6]; 6],
     /// Frames per robot.
@@ -170,6 +173,7 @@ impl CalibrationReport {
             error_vs_truth: ErrorReport::from_opt(c.error_vs_truth),
             normalised_error: c.normalised_error,
             consistency: c.consistency.clone(),
+            hand_eye_check: c.hand_eye_checks.clone(),
             inputs_covariance: matrix6_rows(&c.inputs_covariance),
             frames: PerRobot {
                 reference: c.frames[0],

@@ -80,16 +80,7 @@ impl Default for RefineHandEyeConfig {
 impl RefineHandEyeConfig {
     /// Checks the ranges; the error names the field (`refine_hand_eye.depth.gates_m`).
     pub fn validate(&self) -> Result<()> {
-        self.depth.validate().map_err(|e| match e {
-            Error::Config { field, msg } => Error::Config {
-                field: format!(
-                    "refine_hand_eye.depth.{}",
-                    field.trim_start_matches("hand_eye_depth.")
-                ),
-                msg,
-            },
-            e => e,
-        })?;
+        self.depth.validate_within("refine_hand_eye.depth")?;
         if !(self.cross_max_bend_m.is_finite() && self.cross_max_bend_m >= 0.0) {
             return Err(Error::Config {
                 field: "refine_hand_eye.cross_max_bend_m".into(),

@@ -23,6 +23,7 @@
 //! named in words, with the flange motion that explains them (no rotation: the translation is free; one
 //! rotation axis: the translation along it is free).
 
+pub mod check;
 pub mod joint;
 pub mod observe;
 pub mod plan;
@@ -174,6 +175,18 @@ impl HandEyeDepthConfig {
             );
         }
         Ok(())
+    }
+
+    /// [`Self::validate`] for the configuration nested at `prefix` in its parent's (the error then names
+    /// e.g. `refine_hand_eye.depth.gates_m`).
+    pub fn validate_within(&self, prefix: &str) -> Result<()> {
+        self.validate().map_err(|e| match e {
+            Error::Config { field, msg } => Error::Config {
+                field: format!("{prefix}.{}", field.trim_start_matches("hand_eye_depth.")),
+                msg,
+            },
+            e => e,
+        })
     }
 
     pub(crate) fn consistency(&self) -> ConsistencyConfig {
