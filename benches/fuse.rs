@@ -111,7 +111,8 @@ fn bench(c: &mut Criterion) {
 }
 
 /// The cell stages of `calibrate` on the demo cell: fusing one robot as `calibrate` does (surface
-/// projection, depth views) and the free-space test of one hypothesis.
+/// projection, depth views), the free-space test of one hypothesis, both robots' consistency and
+/// hand-eye checks.
 fn cell(c: &mut Criterion) {
     use depthcal::calibration::robot_to_robot::CalibrateConfig;
     use depthcal::calibration::visibility::{free_space_violation, RobotSight, VisibilityConfig};
@@ -150,6 +151,21 @@ fn cell(c: &mut Criterion) {
         b.iter(|| {
             black_box(robot_consistency(&cell.robots[0], &a, &ccfg).consistent)
                 & black_box(robot_consistency(&cell.robots[1], &o, &ccfg).consistent)
+        })
+    });
+    use depthcal::calibration::handeye::depth::check::{check_hand_eye, HandEyeCheckConfig};
+    let hcfg = HandEyeCheckConfig::default();
+    g.bench_function("hand_eye_check_both", |b| {
+        b.iter(|| {
+            black_box(
+                check_hand_eye(&cell.robots[0], Some(&a.views), &hcfg)
+                    .unwrap()
+                    .consistent,
+            ) & black_box(
+                check_hand_eye(&cell.robots[1], Some(&o.views), &hcfg)
+                    .unwrap()
+                    .consistent,
+            )
         })
     });
     g.finish();

@@ -99,11 +99,20 @@ impl<'de> Deserialize<'de> for DistortionModel {
 const MAX_ITER: usize = 100;
 const STEP_TOL: f64 = 1e-14;
 
+/// Brown-Conrady coefficients that are all zero: both directions are the identity (for finite input the
+/// general formulas give the same numbers, one iteration for the inverse; RealSense depth streams report
+/// zeros).
+#[inline]
+fn no_terms(c: &[f64; 5]) -> bool {
+    c.iter().all(|&v| v == 0.0)
+}
+
 /// Applies the distortion: ideal normalised coordinates → distorted normalised coordinates (the
 /// projection direction, librealsense's `rs2_project_point_to_pixel` before the focal length).
 pub fn distort(model: DistortionModel, c: &[f64; 5], x: f64, y: f64) -> (f64, f64) {
     match model {
         DistortionModel::None => (x, y),
+        DistortionModel::BrownConrady | DistortionModel::InverseBrownConrady if no_terms(c) => (x, y),
         DistortionModel::BrownConrady => {
             let r2 = x * x + y * y;
             let f = 1.0 + c[0] * r2 + c[1] * r2 * r2 + c[4] * r2 * r2 * r2;
@@ -138,6 +147,9 @@ pub fn distort(model: DistortionModel, c: &[f64; 5], x: f64, y: f64) -> (f64, f6
 pub fn undistort(model: DistortionModel, c: &[f64; 5], xd: f64, yd: f64) -> (f64, f64) {
     match model {
         DistortionModel::None => (xd, yd),
+        DistortionModel::BrownConrady | DistortionModel::InverseBrownConrady if no_terms(c) => {
+            (xd, yd)
+        }
         DistortionModel::BrownConrady => {
             let (mut x, mut y) = (xd, yd);
             for _ in 0..MAX_ITER {
