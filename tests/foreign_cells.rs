@@ -476,7 +476,8 @@ fn wrong_inputs_and_a_bare_table_do_not_exit_zero() {
 
 /// `DEPTHCAL_FOREIGN_SWEEP=N` (optionally `DEPTHCAL_FOREIGN_SWEEP_ARGS="--no-priors ..."`,
 /// `DEPTHCAL_FOREIGN_SWEEP_PRIORS=1`, `DEPTHCAL_FOREIGN_SWEEP_VIEWS=12`, `DEPTHCAL_FOREIGN_SWEEP_TILT=deg`,
-/// `DEPTHCAL_FOREIGN_SWEEP_FLOOR=0`): seeds 1..=N at VGA, scenes
+/// `DEPTHCAL_FOREIGN_SWEEP_FLOOR=0`, `DEPTHCAL_FOREIGN_SWEEP_HAND_EYE=MM,DEG`: the second robot's hand-eye
+/// in cell.toml that far off): seeds 1..=N at VGA, scenes
 /// alternating table / shelf, a table of the results. Without the variable it does nothing.
 #[test]
 fn sweep() {
@@ -501,6 +502,12 @@ fn sweep() {
         .ok()
         .and_then(|s| s.parse().ok())
         .unwrap_or(0.0);
+    let hand_eye = std::env::var("DEPTHCAL_FOREIGN_SWEEP_HAND_EYE")
+        .ok()
+        .and_then(|s| {
+            let (mm, deg) = s.split_once(',')?;
+            Some((1, mm.trim().parse().ok()?, deg.trim().parse().ok()?))
+        });
     println!("{}", header());
     let mut errs = Vec::new();
     for seed in 1..=n {
@@ -516,6 +523,10 @@ fn sweep() {
             with_priors,
             tilt_deg: tilt,
             floor,
+            sabotage: Sabotage {
+                hand_eye,
+                ..Sabotage::default()
+            },
             ..ForeignConfig::default()
         };
         let cell = scratch_cell(&format!("sweep-{seed}"), &cfg);

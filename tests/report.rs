@@ -276,6 +276,9 @@ fn calibrate_report_on_the_demo_cell() {
         data["consistency"][0]["frames"].as_array().unwrap().len(),
         20
     );
+    // Both hand-eye checks, as in the JSON.
+    assert_eq!(data["hand_eye_check"], json["hand_eye_check"]);
+    assert_eq!(data["hand_eye_check"].as_array().unwrap().len(), 2);
     let levels = data["icp_levels"].as_array().unwrap();
     assert!(!levels.is_empty());
     let iters: usize = levels

@@ -112,7 +112,9 @@ fn no_terms(c: &[f64; 5]) -> bool {
 pub fn distort(model: DistortionModel, c: &[f64; 5], x: f64, y: f64) -> (f64, f64) {
     match model {
         DistortionModel::None => (x, y),
-        DistortionModel::BrownConrady | DistortionModel::InverseBrownConrady if no_terms(c) => (x, y),
+        DistortionModel::BrownConrady | DistortionModel::InverseBrownConrady if no_terms(c) => {
+            (x, y)
+        }
         DistortionModel::BrownConrady => {
             let r2 = x * x + y * y;
             let f = 1.0 + c[0] * r2 + c[1] * r2 * r2 + c[4] * r2 * r2 * r2;

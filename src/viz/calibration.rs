@@ -5,8 +5,8 @@
 use super::page::{banner, details, esc, list, num, section, table, viewer};
 use super::scene::{frustum, triad, Item, Segment, FLAGGED, PALETTE};
 use super::sections::{
-    consistency_section, convergence_section, degeneracy_cell, lines_item, log_section,
-    matrix_block, matrix_table, pose_formats, residual_section, sigma, three,
+    consistency_section, convergence_section, degeneracy_cell, hand_eye_check_section, lines_item,
+    log_section, matrix_block, matrix_table, pose_formats, residual_section, sigma, three,
     transform_file_blocks, yes_no,
 };
 use super::{finish, Placement, Report, TwoClouds};
@@ -363,7 +363,7 @@ pub fn calibration_report(
         .collect();
     let body = format!(
         "<h1>depthcal calibrate: {cell}</h1><p class=\"sub\">cell {dir} · reference {r} · other {o} · method \
-         {m}</p>{verdict}{}{}{}{}{}{}{}",
+         {m}</p>{verdict}{}{}{}{}{}{}{}{}",
         section("result", "Result", &result),
         section("quality", "Quality", &quality_table(c)),
         section(
@@ -386,6 +386,11 @@ pub fn calibration_report(
             "consistency",
             "Per-frame consistency",
             &consistency_section(&c.consistency)
+        ),
+        section(
+            "hand-eyes",
+            "Hand-eyes against the depth",
+            &hand_eye_check_section(&c.hand_eye_checks)
         ),
         section(
             "convergence",
@@ -413,6 +418,7 @@ pub fn calibration_report(
         "residuals": residuals.iter().map(|p| json!({"name": p.name, "stats": p.stats, "histogram": p.histogram})).collect::<Vec<_>>(),
         "icp_levels": c.icp_levels,
         "consistency": c.consistency,
+        "hand_eye_check": c.hand_eye_checks,
     });
     Ok(finish(
         &sc,

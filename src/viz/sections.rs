@@ -5,6 +5,7 @@ use super::page::{details, esc, grid, list, num, pre, table};
 use super::residual::{Histogram, ResidualStats};
 use super::svg::{bar_chart, histogram, line_chart, Series};
 use crate::calibration::consistency::RobotConsistency;
+use crate::calibration::handeye::depth::check::HandEyeCheck;
 use crate::geometry::pose::{
     isometry_to_abb, isometry_to_fanuc, isometry_to_ur, isometry_to_xyzquat, KukaPose,
 };
@@ -215,6 +216,66 @@ pub fn residual_section(
             &format!("residual ({unit}); the last bin's end is the colour scale's maximum"),
             entries[0].2.max,
             &hists
+        )
+    )
+}
+
+/// Each robot's stated hand-eye against its own depth frames: a row per robot with the change the depth
+/// asks for, its distance in σ and the verdict.
+pub fn hand_eye_check_section(checks: &[HandEyeCheck]) -> String {
+    if checks.is_empty() {
+        return "<p>Not checked (the clouds were not fused, <code>--refine-hand-eye</code> replaced the \
+                hand-eyes, or <code>hand_eye_check.enabled</code> is off).</p>"
+            .into();
+    }
+    let rows: Vec<Vec<String>> = checks
+        .iter()
+        .map(|h| {
+            let verdict = match (h.checked, h.consistent) {
+                (false, _) => format!("not checked: {}", esc(h.note.as_deref().unwrap_or(""))),
+                (true, true) => "<span class=\"good\">agrees</span>".into(),
+                (true, false) => "<span class=\"bad\">DISAGREES</span>".into(),
+            };
+            vec![
+                esc(&h.robot),
+                num(h.change_deg, 3),
+                num(h.change_mm, 2),
+                format!(
+                    "{} / {}",
+                    num(h.distance_sigmas, 1),
+                    num(h.max_distance_sigmas, 1)
+                ),
+                format!(
+                    "{}° / {} mm ({})",
+                    num(h.sigma_deg, 3),
+                    num(h.sigma_mm, 2),
+                    if h.sigma_stated { "stated" } else { "default" }
+                ),
+                format!(
+                    "{} → {}",
+                    num(h.median_residual_mm, 2),
+                    num(h.median_residual_changed_mm, 2)
+                ),
+                verdict,
+            ]
+        })
+        .collect();
+    format!(
+        "<p>Each robot's hand-eye refined briefly from its own depth frames: the change the frames ask for, \
+         over the hand-eye's 1-σ and the fit's covariance (Mahalanobis, six parameters). A hand-eye beyond \
+         the limit makes the result untrusted; the refined one is not adopted (that is \
+         <code>--refine-hand-eye</code>).</p>{}",
+        grid(
+            &[
+                "robot",
+                "change (°)",
+                "change (mm)",
+                "distance / limit (σ)",
+                "hand-eye 1-σ",
+                "median residual (mm)",
+                "verdict",
+            ],
+            &rows
         )
     )
 }
