@@ -10,6 +10,7 @@ pub mod feature_init;
 pub mod handeye;
 pub mod initializer;
 pub mod marker_init;
+pub mod plan;
 pub mod priors;
 pub mod robot_to_robot;
 pub mod uncertainty;

@@ -16,6 +16,7 @@ mod markers;
 mod match_cmd;
 mod methods;
 mod output;
+mod plan;
 mod profile;
 mod register;
 mod signals;
@@ -66,6 +67,9 @@ enum Command {
     /// Where registration spends its time: per-stage wall and CPU time, points in and out, throughput,
     /// each ICP iteration, peak memory (two clouds or a generated pair of any size).
     Profile(profile::Args),
+    /// Which degrees of freedom of the hand-eyes and of T_base1_base2 the cell's frames leave weak, and
+    /// which flange poses to capture next.
+    Plan(plan::Args),
 }
 
 /// Parses the command line, runs the command, and returns the process exit code.
@@ -122,6 +126,7 @@ pub fn run() -> i32 {
         Command::Capture(a) => capture::run(a),
         Command::Import(a) => import::run(a),
         Command::Profile(a) => profile::run(a),
+        Command::Plan(a) => plan::run(a),
     };
     match result {
         Ok(()) => 0,

@@ -18,6 +18,7 @@ pub mod handeye_depth;
 pub mod intrinsics;
 pub mod markers;
 pub mod matching;
+pub mod plan;
 pub mod pose;
 pub mod registration;
 pub mod simulation;
@@ -35,6 +36,7 @@ pub use handeye_depth::{
 pub use intrinsics::{IntrinsicsReport, INTRINSICS_SCHEMA};
 pub use markers::{MarkerImageReport, MarkersReport, MARKERS_SCHEMA};
 pub use matching::{MatchReport, MATCH_SCHEMA};
+pub use plan::{PlanReport, PLAN_SCHEMA};
 pub use pose::{ErrorReport, PoseReport, SigmaReport, Timings};
 pub use registration::{RegistrationInputs, RegistrationReport, REGISTRATION_SCHEMA};
 pub use simulation::{SimulationReport, SIMULATION_SCHEMA};

@@ -1,12 +1,15 @@
 //! Shared helpers of the integration tests: the shared data folder, ground-truth files, error checks.
 #![allow(dead_code)]
 
+use depthcal::camera::Intrinsics;
+use depthcal::cell::{CellManifest, GroundTruth, RobotEntry};
 use depthcal::geometry::transform::{pose_error, random_isometry};
 use depthcal::geometry::Rng;
+use depthcal::io::poses::{write_poses, PoseFormat, PoseRecord};
 use depthcal::registration::{register, RegisterConfig, Registration};
 use depthcal::PointCloud;
-use nalgebra::Isometry3;
-use std::path::PathBuf;
+use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+use std::path::{Path, PathBuf};
 
 /// `../shared/data/NAME` if present; prints a skip message and returns `None` otherwise.
 pub fn data(name: &str) -> Option<PathBuf> {
@@ -212,4 +215,80 @@ pub fn industrial_pose(path: &std::path::Path) -> Isometry3<f64> {
         get("qw"),
     ])
     .unwrap()
+}
+
+/// A pose from a translation (metres) and roll, pitch, yaw (degrees).
+pub fn iso(t: [f64; 3], rpy_deg: [f64; 3]) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(t[0], t[1], t[2]),
+        UnitQuaternion::from_euler_angles(
+            rpy_deg[0].to_radians(),
+            rpy_deg[1].to_radians(),
+            rpy_deg[2].to_radians(),
+        ),
+    )
+}
+
+/// Writes a two-robot cell from the 7-Scenes frames of `data` into `dir`: frames with `pick(k)` go to the
+/// left robot, the others to the right one, each with its own base and hand-eye (cell.toml without
+/// priors, ground_truth.json). Returns the true T_base1_base2.
+pub fn seven_scenes_cell(data: &Path, dir: &Path, pick: impl Fn(usize) -> bool) -> Isometry3<f64> {
+    let frames = data.join("frames");
+    let ids = seven_scenes_frame_ids(&frames);
+    let k: Vec<f64> = std::fs::read_to_string(data.join("camera-intrinsics.txt"))
+        .unwrap()
+        .split_whitespace()
+        .map(|s| s.parse().unwrap())
+        .collect();
+    Intrinsics::pinhole(640, 480, k[0], k[4], k[2], k[5])
+        .write_json_file(dir.join("intrinsics.json"))
+        .unwrap();
+    std::fs::create_dir_all(dir.join("frames")).unwrap();
+    let robots = [
+        (
+            "left",
+            iso([0.4, -0.2, 0.75], [0.0, 0.0, 30.0]),
+            iso([0.032, -0.018, 0.105], [-3.0, 2.0, 91.0]),
+        ),
+        (
+            "right",
+            iso([-1.3, 0.9, 0.7], [0.0, 0.0, -140.0]),
+            iso([-0.02, 0.05, 0.09], [1.0, 178.0, -45.0]),
+        ),
+    ];
+    let mut m = CellManifest::new("left");
+    for (r, (name, t_base_world, t_ee_cam)) in robots.iter().enumerate() {
+        let mut recs = Vec::new();
+        for (i, id) in ids.iter().enumerate() {
+            if pick(i) != (r == 0) {
+                continue;
+            }
+            let f = format!("frame-{id}.depth.png");
+            std::fs::copy(frames.join(&f), dir.join("frames").join(&f)).unwrap();
+            let t_world_cam =
+                depthcal::io::read_matrix_file(frames.join(format!("frame-{id}.pose.txt")))
+                    .unwrap();
+            recs.push(PoseRecord {
+                frame: id.clone(),
+                pose: t_base_world * t_world_cam * t_ee_cam.inverse(),
+                line: 0,
+            });
+        }
+        write_poses(dir.join(format!("{name}.csv")), &recs, PoseFormat::Kuka).unwrap();
+        m.robots.push(RobotEntry {
+            poses: format!("{name}.csv"),
+            intrinsics: "intrinsics.json".into(),
+            depth: "frames/frame-{frame}.depth.png".into(),
+            ..RobotEntry::standard(name, *t_ee_cam)
+        });
+    }
+    m.write(dir).unwrap();
+    let truth = robots[0].1 * robots[1].1.inverse();
+    GroundTruth {
+        t_base1_base2: Some(truth),
+        ..Default::default()
+    }
+    .write(dir)
+    .unwrap();
+    truth
 }
