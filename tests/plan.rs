@@ -30,6 +30,17 @@ fn one_axis_cell(name: &str) -> std::path::PathBuf {
     dir
 }
 
+/// Runs `depthcal ARGS` (with `--json`): the documented report; the exit status is 0 for a trusted
+/// calibration and 3 for an untrusted one.
+fn plan_json(args: &[&str]) -> serde_json::Value {
+    let (code, out, err) = depthcal(args);
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap_or_else(|_| panic!("{err}"));
+    assert_documented(&v);
+    let trusted = v["calibration_trusted"] == true;
+    assert_eq!(code, if trusted { 0 } else { 3 }, "{err}");
+    v
+}
+
 #[test]
 fn plan_names_the_weak_directions_and_proposes_poses_that_lower_them() {
     let dir = one_axis_cell("plan-one-axis");
@@ -38,18 +49,7 @@ fn plan_names_the_weak_directions_and_proposes_poses_that_lower_them() {
     let pc = dir.join("plan.json");
     std::fs::write(&pc, r#"{"weak_sigma_mm": 0.05}"#).unwrap();
     let p = pc.display().to_string();
-    let (code, out, err) = depthcal(&["plan", &d, "--json", "--plan-config", &p, "--count", "3"]);
-    let v: serde_json::Value = serde_json::from_str(&out).unwrap_or_else(|_| panic!("{err}"));
-    assert_documented(&v);
-    assert_eq!(
-        code,
-        if v["calibration_trusted"] == true {
-            0
-        } else {
-            3
-        },
-        "{err}"
-    );
+    let v = plan_json(&["plan", &d, "--json", "--plan-config", &p, "--count", "3"]);
     let he = v["hand_eyes"].as_array().unwrap();
     assert_eq!(he.len(), 2);
     let status = |h: &serde_json::Value, dof: &str| {
@@ -90,18 +90,7 @@ fn seven_scenes_base_to_base_gets_poses_that_share_more_of_the_scene() {
     };
     let dir = scratch("plan-7scenes");
     seven_scenes_cell(&data, &dir, |k| k % 2 == 0);
-    let (code, out, err) = depthcal(&["plan", &dir.display().to_string(), "--json"]);
-    let v: serde_json::Value = serde_json::from_str(&out).unwrap_or_else(|_| panic!("{err}"));
-    assert_documented(&v);
-    assert_eq!(
-        code,
-        if v["calibration_trusted"] == true {
-            0
-        } else {
-            3
-        },
-        "{err}"
-    );
+    let v = plan_json(&["plan", &dir.display().to_string(), "--json"]);
     let base = v["base_sigma_mm"].as_f64().unwrap();
     let weak = v["base_weak_directions"].as_array().unwrap();
     eprintln!("7-Scenes: largest 1-σ {base:.3} mm, weak {weak:?}");
