@@ -415,6 +415,33 @@ fn stated_hand_eyes_are_checked_against_the_depth() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A robot whose flange never moved determines none of its hand-eye: the check says so instead of passing
+/// it; the other robot's is checked in all six parameters.
+#[test]
+fn a_robot_that_never_moved_is_not_checked() {
+    use depthcal::calibration::handeye::depth::check::{check_hand_eye, HandEyeCheckConfig};
+    let dir = sim_cell("hed-check-static", 4, 6, |c| {
+        let p0 = c.robots[0].poses[0].pose;
+        for r in c.robots[0].poses.iter_mut() {
+            r.pose = p0;
+        }
+    });
+    let cell = Cell::open(&dir).unwrap();
+    let cfg = HandEyeCheckConfig::default();
+    let h = check_hand_eye(&cell.robots[0], None, &cfg).unwrap();
+    assert!(!h.checked && h.consistent, "{h:?}");
+    assert!(
+        h.note.as_deref().unwrap().contains("determine none"),
+        "{h:?}"
+    );
+    let h = check_hand_eye(&cell.robots[1], None, &cfg).unwrap();
+    assert!(
+        h.checked && h.consistent && h.determined.len() == 6,
+        "{h:?}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// The joint refinement of both hand-eyes and `T_base1_base2` on one simulated cell (both hand-eyes
 /// perturbed): both hand-eyes within 0.3 mm / 0.05° of the truth, trusted, the residuals not worse.
 #[test]

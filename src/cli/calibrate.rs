@@ -517,9 +517,14 @@ fn print_checks(c: &Calibration) {
     for h in &c.hand_eye_checks {
         if h.checked {
             println!(
-                "hand-eye {:<7}{} with its depth: it asks for {:.3} deg / {:.2} mm, {:.1} sigma of 1-sigma {:.3} deg / {:.2} mm ({}) and the fit's (limit {:.1})",
+                "hand-eye {:<7}{} with its depth{}: it asks for {:.3} deg / {:.2} mm, {:.1} sigma of 1-sigma {:.3} deg / {:.2} mm ({}) and the fit's (limit {:.1})",
                 h.robot,
                 if h.consistent { "agrees" } else { "DISAGREES" },
+                if h.determined.len() < 6 {
+                    format!(" (determined: {})", h.determined.join(" "))
+                } else {
+                    String::new()
+                },
                 h.change_deg,
                 h.change_mm,
                 h.distance_sigmas,

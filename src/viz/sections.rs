@@ -236,6 +236,11 @@ pub fn hand_eye_check_section(checks: &[HandEyeCheck]) -> String {
                 (true, true) => "<span class=\"good\">agrees</span>".into(),
                 (true, false) => "<span class=\"bad\">DISAGREES</span>".into(),
             };
+            let verdict = if h.checked && h.determined.len() < 6 {
+                format!("{verdict} (determined: {})", h.determined.join(" "))
+            } else {
+                verdict
+            };
             vec![
                 esc(&h.robot),
                 num(h.change_deg, 3),

@@ -102,6 +102,9 @@ pub struct HandEyeCheck {
     pub median_residual_mm: f64,
     /// The same with the changed one, millimetres.
     pub median_residual_changed_mm: f64,
+    /// The hand-eye parameters (camera axes: `rx` … `tz`) the robot's poses determine at least weakly
+    /// (`observable` or `weak` in the fit); the check sees only these (the others' fit covariance is huge).
+    pub determined: Vec<&'static str>,
     /// The stated hand-eye and its 1-σ agree with the depth frames.
     pub consistent: bool,
 }
@@ -122,6 +125,7 @@ impl HandEyeCheck {
             sigma_stated,
             median_residual_mm: 0.0,
             median_residual_changed_mm: 0.0,
+            determined: Vec::new(),
             consistent: true,
         }
     }
@@ -131,7 +135,7 @@ impl HandEyeCheck {
         format!(
             "robot {}'s hand-eye disagrees with its own depth frames: they agree best with it moved {:.2}° / {:.1} mm, \
              {:.1}σ of the hand-eye's 1-σ {:.3}° / {:.2} mm ({}) and the fit's own (limit {:.1}σ; median residual \
-             {:.2} -> {:.2} mm)",
+             {:.2} -> {:.2} mm{})",
             self.robot,
             self.change_deg,
             self.change_mm,
@@ -145,7 +149,12 @@ impl HandEyeCheck {
             },
             self.max_distance_sigmas,
             self.median_residual_mm,
-            self.median_residual_changed_mm
+            self.median_residual_changed_mm,
+            if self.determined.len() < 6 {
+                format!("; the poses determine {} of its parameters", self.determined.join(" "))
+            } else {
+                String::new()
+            }
         )
     }
 
@@ -201,6 +210,20 @@ pub fn check_hand_eye(
         ..cfg.depth.clone()
     };
     let fit = refine_hand_eye_from_depth(robot, views, &depth)?;
+    let determined: Vec<&'static str> = fit
+        .dofs
+        .iter()
+        .filter(|d| d.status != "unobservable")
+        .map(|d| d.dof)
+        .collect();
+    if determined.is_empty() {
+        return Ok(HandEyeCheck::not_checked(
+            robot,
+            "the flange poses determine none of the hand-eye's parameters (see `depthcal plan`)"
+                .into(),
+            cfg,
+        ));
+    }
     let (sigma_deg, sigma_mm, sigma_stated) = stated_sigma(robot);
     let delta: Vector6<f64> = {
         let r = fit.change.rotation.scaled_axis();
@@ -240,6 +263,7 @@ pub fn check_hand_eye(
         sigma_stated,
         median_residual_mm: fit.median_before_m * 1e3,
         median_residual_changed_mm: fit.median_after_m * 1e3,
+        determined,
         consistent: d2 <= cfg.max_distance_sq,
     })
 }
