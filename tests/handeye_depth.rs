@@ -548,52 +548,13 @@ fn joint_refinement_of_a_degenerate_pose_set_is_untrusted() {
 /// and the result is untrusted.
 #[test]
 fn seven_scenes_wrong_hand_eye_moves_back_toward_the_truth() {
-    use depthcal::camera::Intrinsics;
-    use depthcal::cell::RobotEntry;
-    use depthcal::io::poses::{write_poses, PoseFormat, PoseRecord};
     let Some(data) = data("7scenes-rgbd-tsdf-fusion") else {
         return;
     };
     let dir = scratch("hed-7scenes");
-    let frames = data.join("frames");
-    let k: Vec<f64> = std::fs::read_to_string(data.join("camera-intrinsics.txt"))
-        .unwrap()
-        .split_whitespace()
-        .map(|s| s.parse().unwrap())
-        .collect();
-    Intrinsics::pinhole(640, 480, k[0], k[4], k[2], k[5])
-        .write_json_file(dir.join("intrinsics.json"))
-        .unwrap();
-    std::fs::create_dir_all(dir.join("frames")).unwrap();
-    let t_base_world = Isometry3::new(Vector3::new(0.4, -0.2, 0.75), Vector3::new(0.0, 0.0, 0.5));
-    let truth = Isometry3::from_parts(
-        Translation3::new(0.032, -0.018, 0.105),
-        UnitQuaternion::from_euler_angles(-0.05, 0.035, 1.59),
-    );
-    let mut recs = Vec::new();
-    for (i, id) in seven_scenes_frame_ids(&frames).iter().enumerate() {
-        if i % 2 != 0 {
-            continue;
-        }
-        let f = format!("frame-{id}.depth.png");
-        std::fs::copy(frames.join(&f), dir.join("frames").join(&f)).unwrap();
-        let t_world_cam =
-            depthcal::io::read_matrix_file(frames.join(format!("frame-{id}.pose.txt"))).unwrap();
-        recs.push(PoseRecord {
-            frame: id.clone(),
-            pose: t_base_world * t_world_cam * truth.inverse(),
-            line: 0,
-        });
-    }
-    write_poses(dir.join("left.csv"), &recs, PoseFormat::Kuka).unwrap();
-    let mut m = CellManifest::new("left");
-    m.robots.push(RobotEntry {
-        poses: "left.csv".into(),
-        intrinsics: "intrinsics.json".into(),
-        depth: "frames/frame-{frame}.depth.png".into(),
-        ..RobotEntry::standard("left", truth * perturbation(7, 5.0, 2.0))
-    });
-    m.write(&dir).unwrap();
+    seven_scenes_cell(&data, &dir, |k| k % 2 == 0);
+    let truth = Cell::open(&dir).unwrap().robots[0].t_ee_cam;
+    set_hand_eye(&dir, 0, truth * perturbation(7, 5.0, 2.0));
     let r = refine(&dir, 0);
     let e = HandEyeTruthReport::new(&r, &truth);
     eprintln!("7-Scenes: {}", summary(&r, &truth));

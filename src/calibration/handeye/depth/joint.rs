@@ -22,9 +22,7 @@
 //! vocabulary; the base-to-base covariance is reported as a left increment in base1 (like calibrate's).
 
 use super::observe::{DofObservability, WeakDirection};
-use super::residuals::{
-    frame_points, skew, test_point, Association, FramePoints, PointTest, Problem, Target,
-};
+use super::residuals::{frame_points, skew, test_point, Association, FramePoints, Problem, Target};
 use super::{
     association, characteristic_range, frame_residuals, frame_stats, load_views, observability,
     observability_reasons, FrameDepthResidual, HandEyeDepthConfig,
@@ -362,20 +360,10 @@ impl Joint<'_> {
                             continue;
                         }
                         let q = r * p + tv;
-                        let (nj, res, sigma, wk) =
-                            match test_point(&target, pa.cfg, asn, &r, (p, np), &q, accept) {
-                                PointTest::Miss => continue,
-                                PointTest::WrongSide => {
-                                    out.wrong_side += 1;
-                                    continue;
-                                }
-                                PointTest::Hit {
-                                    nj,
-                                    res,
-                                    sigma,
-                                    weight,
-                                } => (nj, res, sigma, weight),
-                            };
+                        let test = test_point(&target, pa.cfg, asn, &r, (p, np), &q, accept);
+                        let Some((nj, res, sigma, wk)) = test.hit(&mut out.wrong_side) else {
+                            continue;
+                        };
                         // dq/dδa = R·[−[p]×, I]; dq/dδb = [[q]×, −I].
                         let ja_w = nj.transpose() * (-r * skew(p));
                         let ja_v = nj.transpose() * r;

@@ -190,6 +190,27 @@ pub(crate) fn test_point(
     }
 }
 
+impl PointTest {
+    /// A hit's `(nj, res, sigma, weight)`; `None` for a miss, and for a side-of-surface refusal, which is
+    /// also counted in `wrong_side`.
+    #[inline]
+    pub(crate) fn hit(self, wrong_side: &mut usize) -> Option<(Vector3<f64>, f64, f64, f64)> {
+        match self {
+            PointTest::Miss => None,
+            PointTest::WrongSide => {
+                *wrong_side += 1;
+                None
+            }
+            PointTest::Hit {
+                nj,
+                res,
+                sigma,
+                weight,
+            } => Some((nj, res, sigma, weight)),
+        }
+    }
+}
+
 impl Problem<'_> {
     /// The per-frame sums under hand-eye `x` (frame order, deterministic at any thread count).
     pub(crate) fn sums(&self, x: &Isometry3<f64>, a: &Association) -> Vec<FrameSums> {
@@ -218,22 +239,11 @@ impl Problem<'_> {
                     };
                     for (k, (p, np)) in fp.points.iter().zip(&fp.normals).enumerate() {
                         let q = r * p + tv;
-                        let (nj, res, sigma, wk) =
-                            match test_point(&target, self.cfg, a, &r, (p, np), &q, |_, _, _, _| {
-                                true
-                            }) {
-                                PointTest::Miss => continue,
-                                PointTest::WrongSide => {
-                                    s.wrong_side += 1;
-                                    continue;
-                                }
-                                PointTest::Hit {
-                                    nj,
-                                    res,
-                                    sigma,
-                                    weight,
-                                } => (nj, res, sigma, weight),
-                            };
+                        let test =
+                            test_point(&target, self.cfg, a, &r, (p, np), &q, |_, _, _, _| true);
+                        let Some((nj, res, sigma, wk)) = test.hit(&mut s.wrong_side) else {
+                            continue;
+                        };
                         let jw = nj.transpose() * (skew(&q) - r * skew(p));
                         let jv = nj.transpose() * r_minus_i;
                         let jrow = RowVector6::new(jw[0], jw[1], jw[2], jv[0], jv[1], jv[2]);
