@@ -6,7 +6,7 @@
 
 mod common;
 #[allow(unused_imports)]
-use common::{data as shared_data, scratch as tmpdir, seven_scenes_frame_ids};
+use common::{data as shared_data, iso, scratch as tmpdir, seven_scenes_frame_ids};
 use depthcal::camera::{read_depth_png, DeprojectConfig, DepthImage, Intrinsics, RayTable};
 use depthcal::cell::{Cell, CellManifest, HandEyeSpec, RobotEntry};
 use depthcal::fusion::{
@@ -26,17 +26,6 @@ fn read_matrix_txt(path: &Path) -> Isometry3<f64> {
         .map(|s| s.parse().unwrap())
         .collect();
     isometry_from_rows(&v[..16].try_into().unwrap(), "pose").unwrap()
-}
-
-fn iso(t: [f64; 3], rpy_deg: [f64; 3]) -> Isometry3<f64> {
-    Isometry3::from_parts(
-        Translation3::new(t[0], t[1], t[2]),
-        UnitQuaternion::from_euler_angles(
-            rpy_deg[0].to_radians(),
-            rpy_deg[1].to_radians(),
-            rpy_deg[2].to_radians(),
-        ),
-    )
 }
 
 /// Point-to-plane residuals of `query` against `reference` (with normals): for each query point whose
