@@ -124,3 +124,61 @@ fn bad_arguments_are_named() {
     assert_eq!(code, 1);
     assert!(err.contains("one or the other"), "{err}");
 }
+
+#[test]
+fn a_written_synthetic_pair_profiles_from_its_files_as_generated() {
+    let d = common::scratch("profile-write-pair").join("pair");
+    let (code, out, err) = depthcal(&[
+        "profile",
+        "--synthetic",
+        "20000",
+        "--seed",
+        "5",
+        "--write-pair",
+        d.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("wrote"), "{out}");
+    let f = |n: &str| d.join(n).to_str().unwrap().to_string();
+    // The files give the same fine stage as the generated pair: same clouds, same guess, same truth.
+    let from_files = json(
+        &depthcal(&[
+            "profile",
+            &f("source.ply"),
+            &f("target.ply"),
+            "--init",
+            &f("init.txt"),
+            "--truth",
+            &f("truth.txt"),
+            "--stages",
+            "icp",
+            "--repeat",
+            "1",
+            "--json",
+        ])
+        .1,
+    );
+    let generated = json(
+        &depthcal(&[
+            "profile",
+            "--synthetic",
+            "20000",
+            "--seed",
+            "5",
+            "--stages",
+            "icp",
+            "--repeat",
+            "1",
+            "--json",
+        ])
+        .1,
+    );
+    assert_eq!(from_files["points"], generated["points"]);
+    let err = |v: &serde_json::Value| v["error_vs_truth"]["rotation_deg"].as_f64().unwrap();
+    assert!((err(&from_files) - err(&generated)).abs() < 1e-6);
+    assert!(err(&from_files) < 0.5);
+    // It needs --synthetic (a usage error).
+    let (code, _, err) = depthcal(&["profile", "--write-pair", d.to_str().unwrap()]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--synthetic"), "{err}");
+}

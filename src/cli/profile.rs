@@ -3,7 +3,7 @@
 
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
-use depthcal::io::{read_cloud, read_matrix_file};
+use depthcal::io::{read_cloud, read_matrix_file, write_cloud, write_matrix_file};
 use depthcal::profile::{nearby_guess, profile, synthetic_pair, ProfileConfig, ProfileReport};
 use depthcal::registration::RegisterConfig;
 use std::path::PathBuf;
@@ -19,6 +19,11 @@ pub struct Args {
     /// overlap, a known transform) instead of two files.
     #[arg(long, value_name = "N")]
     synthetic: Option<usize>,
+    /// With --synthetic: write the generated pair to this directory (`source.ply`, `target.ply`, the true
+    /// transform `truth.txt` and the fine stage's starting guess `init.txt`, 3° / 5 cm off it) and stop,
+    /// so other tools can be run on the same clouds.
+    #[arg(long, value_name = "DIR", requires = "synthetic")]
+    write_pair: Option<PathBuf>,
     /// Initial guess (a 4x4 matrix file or a previous --json output): skips the global stage.
     #[arg(long)]
     init: Option<PathBuf>,
@@ -66,6 +71,9 @@ pub fn run(a: Args) -> Result<()> {
     let report = match (&a.synthetic, &a.source, &a.target) {
         (Some(n), None, None) => {
             let (s, t, pose) = synthetic_pair(*n, a.seed)?;
+            if let Some(dir) = &a.write_pair {
+                return write_pair(dir, &s, &t, &pose);
+            }
             truth = truth.or(Some(pose));
             let init = init.or_else(|| pcfg.fine_only().then(|| nearby_guess(&pose)));
             let input = format!("synthetic {n} (seed {})", a.seed);
@@ -100,6 +108,27 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         print_table(&report);
     }
+    Ok(())
+}
+
+/// Writes a generated pair, its truth and the fine stage's guess into `dir` (created if missing).
+fn write_pair(
+    dir: &std::path::Path,
+    source: &depthcal::PointCloud,
+    target: &depthcal::PointCloud,
+    truth: &nalgebra::Isometry3<f64>,
+) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    write_cloud(dir.join("source.ply"), source)?;
+    write_cloud(dir.join("target.ply"), target)?;
+    write_matrix_file(dir.join("truth.txt"), truth)?;
+    write_matrix_file(dir.join("init.txt"), &nearby_guess(truth))?;
+    println!(
+        "wrote {} + {} points, truth.txt and init.txt to {}",
+        source.len(),
+        target.len(),
+        dir.display()
+    );
     Ok(())
 }
 
