@@ -116,6 +116,10 @@ pub struct IterationProfile {
     pub kept: usize,
     /// RMS of the kept residuals (cloud units).
     pub residual: f64,
+    /// Rotation of the step taken after the iteration, degrees (`None` for a level's last record).
+    pub step_deg: Option<f64>,
+    /// Translation of that step (cloud units; `None` for a level's last record).
+    pub step_translation: Option<f64>,
 }
 
 /// One ICP level (of the last run).
@@ -302,6 +306,8 @@ pub fn profile(
                         pairs: i.pairs,
                         kept: i.kept,
                         residual: i.residual_sigma,
+                        step_deg: i.step_rotation.map(f64::to_degrees),
+                        step_translation: i.step_translation,
                     })
                     .collect(),
             }

@@ -189,8 +189,12 @@ fn print_table(r: &ProfileReport) {
             rate(Some(l.queries_per_s)).replace("/s", " queries/s")
         );
         for (i, it) in l.iterations.iter().enumerate() {
+            let step = match (it.step_deg, it.step_translation) {
+                (Some(r), Some(t)) => format!("  step {r:.2e} deg {t:.2e}"),
+                _ => String::new(),
+            };
             println!(
-                "  {i:>3}  {:>8.2} ms  pairs {:>9}  kept {:>9}  residual {:.3e}",
+                "  {i:>3}  {:>8.2} ms  pairs {:>9}  kept {:>9}  residual {:.3e}{step}",
                 it.time_ms, it.pairs, it.kept, it.residual
             );
         }
