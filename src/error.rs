@@ -149,6 +149,18 @@ pub(crate) mod check {
             ))
         }
     }
+
+    /// A count of at most `max`.
+    pub fn at_most(field: &str, v: usize, max: usize) -> Result<()> {
+        if v <= max {
+            Ok(())
+        } else {
+            Err(Error::config(
+                field,
+                format!("must be at most {max}, got {v}"),
+            ))
+        }
+    }
 }
 
 #[cfg(test)]

@@ -77,7 +77,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         radius: Some(r),
         max_neighbors: 30,
     };
-    let (normals_ms, _) = best(repeat, || estimate_normals(tp, &KdIndex::new(tp), &ncfg(0.02)));
+    let (normals_ms, _) = best(repeat, || {
+        estimate_normals(tp, &KdIndex::new(tp), &ncfg(0.02))
+    });
 
     let coarse = voxel_downsample(&target, 0.05)?;
     write_cloud(out.join("fpfh_target.ply"), &coarse)?;

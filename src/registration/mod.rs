@@ -1,5 +1,6 @@
 //! Registration: correspondences, RANSAC, trimmed robust ICP, and the `register` pipeline.
 
+pub mod anderson;
 pub mod consensus;
 pub mod correspondence;
 pub mod extent;
