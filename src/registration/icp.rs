@@ -129,11 +129,11 @@ pub struct IcpConfig {
     /// used even without `max_normal_angle_deg` (default false).
     pub sided: bool,
     /// Anderson acceleration of the iterations (AA-ICP, [`crate::registration::anderson`]): the number of
-    /// past steps combined, 0 for none (default 3), at most 20. It acts only while a step exceeds 100 times the
-    /// tolerances (a rough start): near the solution the steps are taken plain, so a start near it gives
-    /// the unaccelerated result exactly. A proposal that raises the truncated point-to-point
+    /// past steps combined, 0 for none (default 3), at most 20. It acts only while a step exceeds 100
+    /// times the tolerances (a rough start): near the solution the steps are taken plain, so a start near
+    /// it gives the unaccelerated result exactly. A proposal that raises the truncated point-to-point
     /// energy (`Σ min(d², τ²)` over the source points, τ the correspondence distance) is dropped for the
-    /// plain step.
+    /// plain step, at the cost of one more correspondence search.
     pub acceleration: usize,
 }
 
@@ -232,11 +232,13 @@ pub struct IcpIteration {
     pub rmse: f64,
     /// RMS of the kept pairs' residuals (cloud units; point-to-plane when the target has normals).
     pub residual_sigma: f64,
-    /// Rotation of the step taken after this iteration, radians (`None` for the last record).
+    /// Rotation of the Gauss-Newton step computed at this iteration, radians (`None` for the last record);
+    /// under acceleration the move taken can be longer.
     pub step_rotation: Option<f64>,
     /// Translation of that step (cloud units; `None` for the last record).
     pub step_translation: Option<f64>,
-    /// Wall time of the iteration (correspondences, trimming, normal equations, step), milliseconds.
+    /// Wall time of the iteration (correspondences, trimming, normal equations, step; and the search at an
+    /// accelerated pose that was dropped before it), milliseconds.
     pub time_ms: f64,
 }
 
