@@ -141,38 +141,20 @@ fn a_written_synthetic_pair_profiles_from_its_files_as_generated() {
     assert!(out.contains("wrote"), "{out}");
     let f = |n: &str| d.join(n).to_str().unwrap().to_string();
     // The files give the same fine stage as the generated pair: same clouds, same guess, same truth.
-    let from_files = json(
-        &depthcal(&[
-            "profile",
-            &f("source.ply"),
-            &f("target.ply"),
-            "--init",
-            &f("init.txt"),
-            "--truth",
-            &f("truth.txt"),
-            "--stages",
-            "icp",
-            "--repeat",
-            "1",
-            "--json",
-        ])
-        .1,
+    let fine_stage = |input: &[&str]| {
+        let mut args = vec!["profile"];
+        args.extend_from_slice(input);
+        args.extend_from_slice(&["--stages", "icp", "--repeat", "1", "--json"]);
+        json(&depthcal(&args).1)
+    };
+    let (s, t, init, truth) = (
+        f("source.ply"),
+        f("target.ply"),
+        f("init.txt"),
+        f("truth.txt"),
     );
-    let generated = json(
-        &depthcal(&[
-            "profile",
-            "--synthetic",
-            "20000",
-            "--seed",
-            "5",
-            "--stages",
-            "icp",
-            "--repeat",
-            "1",
-            "--json",
-        ])
-        .1,
-    );
+    let from_files = fine_stage(&[&s, &t, "--init", &init, "--truth", &truth]);
+    let generated = fine_stage(&["--synthetic", "20000", "--seed", "5"]);
     assert_eq!(from_files["points"], generated["points"]);
     let err = |v: &serde_json::Value| v["error_vs_truth"]["rotation_deg"].as_f64().unwrap();
     assert!((err(&from_files) - err(&generated)).abs() < 1e-6);
