@@ -7,6 +7,7 @@
 use crate::error::{Error, Result};
 use crate::index::KdIndex;
 use crate::preprocess::voxel::count_voxels;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Parameters of the automatic voxel choice.
@@ -61,7 +62,7 @@ pub fn estimate_spacing(points: &[[f32; 3]]) -> Result<f64> {
         let mut half = (0.5 * extent * (LOCAL as f64 / points.len() as f64).sqrt()) as f32;
         let inside = |h: f32| {
             points
-                .iter()
+                .par_iter()
                 .filter(|p| (0..3).all(|k| (p[k] - center[k]).abs() <= h))
                 .count()
         };
@@ -72,8 +73,9 @@ pub fn estimate_spacing(points: &[[f32; 3]]) -> Result<f64> {
             }
             half *= (LOCAL as f32 / n as f32).sqrt().clamp(0.25, 4.0);
         }
+        // An indexed parallel filter keeps the points' order: the same sample at any thread count.
         let local: Vec<[f32; 3]> = points
-            .iter()
+            .par_iter()
             .filter(|p| (0..3).all(|k| (p[k] - center[k]).abs() <= half))
             .copied()
             .collect();
@@ -115,17 +117,25 @@ fn median_point(points: &[[f32; 3]]) -> [f32; 3] {
     out
 }
 
-/// The point of `points` nearest `q` (ties to the smaller index); `points` is not empty.
+/// The point of `points` nearest `q` (ties to the smaller index); `points` is not empty. In parallel; the
+/// smallest (distance, index) is the same at any thread count.
 fn nearest_point(points: &[[f32; 3]], q: &[f32; 3]) -> [f32; 3] {
     let d2 = |p: &[f32; 3]| (0..3).map(|k| (p[k] - q[k]) * (p[k] - q[k])).sum::<f32>();
-    let mut best = (points[0], d2(&points[0]));
-    for p in &points[1..] {
-        let d = d2(p);
-        if d < best.1 {
-            best = (*p, d);
-        }
-    }
-    best.0
+    let (_, i) = points
+        .par_iter()
+        .enumerate()
+        .map(|(i, p)| (d2(p), i))
+        .reduce(
+            || (f32::INFINITY, usize::MAX),
+            |a, b| {
+                if b.0 < a.0 || (b.0 == a.0 && b.1 < a.1) {
+                    b
+                } else {
+                    a
+                }
+            },
+        );
+    points[i.min(points.len() - 1)]
 }
 
 /// The voxel edge that leaves about `target` occupied voxels in `points`, never below `min_voxel`.

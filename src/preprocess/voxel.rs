@@ -34,14 +34,28 @@ pub(crate) fn voxel_keys(points: &[[f32; 3]], voxel: f64) -> Result<Vec<u64>> {
             msg: format!("must be a positive length, got {voxel}"),
         });
     }
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for p in points {
-        for k in 0..3 {
-            lo[k] = lo[k].min(p[k] as f64);
-            hi[k] = hi[k].max(p[k] as f64);
-        }
-    }
+    // The box, in parallel (min and max are exact: the same at any thread count).
+    let (lo, hi) = points
+        .par_iter()
+        .fold(
+            || ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
+            |(mut lo, mut hi), p| {
+                for k in 0..3 {
+                    lo[k] = lo[k].min(p[k] as f64);
+                    hi[k] = hi[k].max(p[k] as f64);
+                }
+                (lo, hi)
+            },
+        )
+        .reduce(
+            || ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
+            |a, b| {
+                (
+                    std::array::from_fn(|k| a.0[k].min(b.0[k])),
+                    std::array::from_fn(|k| a.1[k].max(b.1[k])),
+                )
+            },
+        );
     for k in 0..3 {
         if (hi[k] - lo[k]) / voxel > MAX_CELLS {
             return Err(Error::Config {
