@@ -383,6 +383,97 @@ pub(crate) fn view_depth(
     v: f64,
     cfg: &ConsistencyConfig,
 ) -> Option<(f64, f64)> {
+    depth_with(
+        view,
+        u,
+        v,
+        cfg,
+        |k| (view.near[k] as f64, view.far[k] as f64),
+        |k| block_smooth(view, k, cfg).then(|| block_mid(view, k)),
+    )
+}
+
+/// A block's mid depth, `(near + far) / 2` in f64 (metres).
+#[inline]
+fn block_mid(view: &DepthView, k: usize) -> f64 {
+    0.5 * (view.near[k] as f64 + view.far[k] as f64)
+}
+
+/// A view with each block's depths and whether it is smooth side by side (8 bytes a block: one cache line
+/// holds eight), for the many lookups of the hand-eye residuals: [`Self::depth`] is [`view_depth`], bit for
+/// bit.
+pub(crate) struct SmoothDepth<'a> {
+    pub(crate) view: &'a DepthView,
+    /// Per block, row-major.
+    blocks: Vec<BlockDepth>,
+    pub(crate) cfg: &'a ConsistencyConfig,
+}
+
+/// One block of a [`SmoothDepth`].
+#[derive(Clone, Copy)]
+struct BlockDepth {
+    /// Nearest depth (metres, 0 = none).
+    near: f32,
+    /// Farthest depth (metres), negated when the block is not smooth ([`block_smooth`]).
+    signed_far: f32,
+}
+
+impl<'a> SmoothDepth<'a> {
+    /// Tabulates `view`'s blocks under `cfg`.
+    pub(crate) fn new(view: &'a DepthView, cfg: &'a ConsistencyConfig) -> Self {
+        let blocks = (0..view.near.len())
+            .map(|k| BlockDepth {
+                near: view.near[k],
+                signed_far: if block_smooth(view, k, cfg) {
+                    view.far[k]
+                } else {
+                    -view.far[k]
+                },
+            })
+            .collect();
+        SmoothDepth { view, blocks, cfg }
+    }
+
+    /// [`block_smooth`] of block `k` (row-major).
+    #[inline]
+    pub(crate) fn smooth(&self, k: usize) -> bool {
+        // A smooth block has depth (far ≥ near > 0); the others' far is stored as −far (−0 included).
+        self.blocks[k].signed_far.is_sign_positive()
+    }
+
+    /// [`view_depth`] at pixel `(u, v)`.
+    #[inline]
+    pub(crate) fn depth(&self, u: f64, v: f64) -> Option<(f64, f64)> {
+        depth_with(
+            self.view,
+            u,
+            v,
+            self.cfg,
+            |k| {
+                let b = &self.blocks[k];
+                (b.near as f64, b.signed_far.abs() as f64)
+            },
+            |k| {
+                let b = &self.blocks[k];
+                b.signed_far
+                    .is_sign_positive()
+                    .then_some(0.5 * (b.near as f64 + b.signed_far as f64))
+            },
+        )
+    }
+}
+
+/// [`view_depth`] with `near_far(k)`, block `k`'s nearest and farthest depth, and `smooth_mid(k)`, its mid
+/// depth when it is smooth, else `None`.
+#[inline]
+fn depth_with(
+    view: &DepthView,
+    u: f64,
+    v: f64,
+    cfg: &ConsistencyConfig,
+    near_far: impl Fn(usize) -> (f64, f64),
+    smooth_mid: impl Fn(usize) -> Option<f64>,
+) -> Option<(f64, f64)> {
     let b = view.block as f64;
     let (sw, sh) = (view.size[0] as i64, view.size[1] as i64);
     let bu = floor_i64((u + 0.5) / b);
@@ -390,8 +481,7 @@ pub(crate) fn view_depth(
     if bu < 0 || bv < 0 || bu >= sw || bv >= sh {
         return None;
     }
-    let k = (bv * sw + bu) as usize;
-    let (near, far) = (view.near[k] as f64, view.far[k] as f64);
+    let (near, far) = near_far((bv * sw + bu) as usize);
     if near <= 0.0 {
         return None;
     }
@@ -404,12 +494,13 @@ pub(crate) fn view_depth(
     let mut ok = true;
     for (c, (du, dv)) in [(0, 0), (1, 0), (0, 1), (1, 1)].into_iter().enumerate() {
         let (x, y) = ((iu + du).clamp(0, sw - 1), (iv + dv).clamp(0, sh - 1));
-        let kk = (y * sw + x) as usize;
-        if !block_smooth(view, kk, cfg) {
-            ok = false;
-            break;
+        match smooth_mid((y * sw + x) as usize) {
+            Some(m) => mids[c] = m,
+            None => {
+                ok = false;
+                break;
+            }
         }
-        mids[c] = 0.5 * (view.near[kk] as f64 + view.far[kk] as f64);
     }
     if ok {
         let lo = mids.iter().cloned().fold(f64::INFINITY, f64::min);
@@ -944,6 +1035,64 @@ mod tests {
 
     fn demo_dir() -> PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("clouds/demo-cell")
+    }
+
+    /// The tabulated lookup is `view_depth` bit for bit, at random pixels (inside, on and beyond the
+    /// edges) of a view with smooth ramps, depth steps (rough blocks) and holes.
+    #[test]
+    fn smooth_depth_is_view_depth() {
+        use crate::camera::DepthImage;
+        let intr = Intrinsics::pinhole(64, 48, 50.0, 50.0, 31.5, 23.5);
+        let mut img = DepthImage::zeros(64, 48);
+        for v in 0..48u32 {
+            for u in 0..64u32 {
+                let d = if (u / 9 + v / 7) % 5 == 0 {
+                    0 // holes
+                } else if u < 40 {
+                    800 + 3 * u + 2 * v // a slanted plane (mm)
+                } else {
+                    1500 + 300 * ((u + v) % 2) // a rough patch: pixels alternate 1.5 and 1.8 m
+                };
+                img.data[(v * 64 + u) as usize] = d as u16;
+            }
+        }
+        let view = DepthView::new(&img, &intr, &Isometry3::identity(), 4);
+        let cfg = ConsistencyConfig::default();
+        let table = SmoothDepth::new(&view, &cfg);
+        let (mut smooth, mut rough) = (0, 0);
+        for k in 0..view.near.len() {
+            assert_eq!(table.smooth(k), block_smooth(&view, k, &cfg), "block {k}");
+            if table.smooth(k) {
+                smooth += 1;
+            } else if view.near[k] > 0.0 {
+                rough += 1;
+            }
+        }
+        assert!(smooth > 20 && rough > 5, "{smooth} smooth, {rough} rough");
+        let mut s = 3u64;
+        let mut r = move || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut bilinear, mut some) = (0, 0);
+        for _ in 0..20_000 {
+            let (u, v) = (r() * 72.0 - 4.0, r() * 56.0 - 4.0);
+            let want = view_depth(&view, u, v, &cfg);
+            let got = table.depth(u, v);
+            assert_eq!(
+                got.map(|(a, b)| (a.to_bits(), b.to_bits())),
+                want.map(|(a, b)| (a.to_bits(), b.to_bits())),
+                "({u}, {v})"
+            );
+            some += want.is_some() as usize;
+            bilinear += want.is_some_and(|(a, b)| a == b) as usize;
+        }
+        assert!(
+            some > 5000 && bilinear > 2000,
+            "{some} depths, {bilinear} bilinear"
+        );
     }
 
     fn check(robot: &CellRobot, cfg: &ConsistencyConfig) -> RobotConsistency {

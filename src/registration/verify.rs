@@ -289,7 +289,12 @@ impl Verifier<'_> {
             .map(|r| r.transform)
             .unwrap_or(*from);
         let s = if self.constraint.accepts(&refined) {
-            self.score(&refined, step) * self.prior.map_or(1.0, |f| f(&refined))
+            let s = self.score(&refined, step);
+            // The prior (in [0, 1]) cannot lift a score of 0: not evaluated then.
+            match self.prior {
+                Some(f) if s > 0.0 => s * f(&refined),
+                _ => s,
+            }
         } else {
             0.0
         };

@@ -22,13 +22,12 @@
 //! vocabulary; the base-to-base covariance is reported as a left increment in base1 (like calibrate's).
 
 use super::observe::{DofObservability, WeakDirection};
-use super::residuals::{frame_points, skew, test_point, Association, FramePoints, Problem, Target};
+use super::residuals::{skew, test_point, Association, FramePoints, Problem, Target};
 use super::{
     association, characteristic_range, frame_residuals, frame_stats, load_views, observability,
     observability_reasons, FrameDepthResidual, HandEyeDepthConfig,
 };
-use crate::calibration::consistency::{block_smooth, view_depth, ConsistencyConfig};
-use crate::camera::DepthView;
+use crate::calibration::consistency::SmoothDepth;
 use crate::cell::CellRobot;
 use crate::error::{Error, Result};
 use nalgebra::{
@@ -213,10 +212,11 @@ impl Default for JointSums {
 }
 
 /// Whether the view's blocks within `r` blocks of pixel `(u, v)` are all smooth.
-fn away_from_edges(view: &DepthView, u: f64, v: f64, r: u32, cfg: &ConsistencyConfig) -> bool {
+fn away_from_edges(depth: &SmoothDepth, u: f64, v: f64, r: u32) -> bool {
     if r == 0 {
         return true;
     }
+    let view = depth.view;
     let b = view.block as f64;
     let (sw, sh) = (view.size[0] as i64, view.size[1] as i64);
     let (bu, bv) = (
@@ -229,7 +229,7 @@ fn away_from_edges(view: &DepthView, u: f64, v: f64, r: u32, cfg: &ConsistencyCo
             if x < 0 || y < 0 || x >= sw || y >= sh {
                 return false;
             }
-            if !block_smooth(view, (y * sw + x) as usize, cfg) {
+            if !depth.smooth((y * sw + x) as usize) {
                 return false;
             }
         }
@@ -241,23 +241,22 @@ fn away_from_edges(view: &DepthView, u: f64, v: f64, r: u32, cfg: &ConsistencyCo
 /// centre point `p` from the mean of its neighbours one block to each side (metres). `None` where a
 /// neighbour has no smooth depth.
 fn bend_at(
-    view: &DepthView,
+    depth: &SmoothDepth,
     intr: &crate::camera::Intrinsics,
     u: f64,
     v: f64,
     p: &Vector3<f64>,
     n: &Vector3<f64>,
-    cfg: &ConsistencyConfig,
 ) -> Option<f64> {
     let at = |u: f64, v: f64| -> Option<Vector3<f64>> {
-        let (near, far) = view_depth(view, u, v, cfg)?;
+        let (near, far) = depth.depth(u, v)?;
         if far - near > 1e-9 || near <= 0.0 {
             return None;
         }
         let q = intr.deproject([u, v], near);
         Some(Vector3::new(q[0], q[1], q[2]))
     };
-    let b = view.block as f64;
+    let b = depth.view.block as f64;
     let du = (at(u + b, v)? + at(u - b, v)?) * 0.5 - p;
     let dv = (at(u, v + b)? + at(u, v - b)?) * 0.5 - p;
     Some(n.dot(&du).abs().max(n.dot(&dv).abs()))
@@ -320,7 +319,7 @@ impl Joint<'_> {
         // Maps robot a's base into robot b's: T_base1_base2 from 2 to 1, its inverse from 1 to 2.
         let m = if a == 1 { s.b } else { s.b.inverse() };
         let size = (pb.intr.width as f64, pb.intr.height as f64);
-        (0..pa.views.len())
+        (0..pa.frames())
             .into_par_iter()
             .map(|i| {
                 let mut out = JointSums::default();
@@ -331,7 +330,7 @@ impl Joint<'_> {
                 let ok = &self.cross_ok[a][i];
                 let mut used = vec![false; fp.points.len()];
                 let base_a_cam = pa.t_base_ee[i] * xa;
-                for j in 0..pb.views.len() {
+                for j in 0..pb.frames() {
                     let cam_b_base_b = xb_inv * pb.t_base_ee[j].inverse();
                     let t = cam_b_base_b * m * base_a_cam;
                     let r = *t.rotation.to_rotation_matrix().matrix();
@@ -343,16 +342,16 @@ impl Joint<'_> {
                         *cam_b_base_b.rotation.to_rotation_matrix().matrix()
                     };
                     let target = Target {
-                        view: &pb.views[j],
+                        depth: &pb.depths[j],
                         intr: pb.intr,
                         cfg: pb.cfg,
                         size,
                     };
                     // Cross-robot tests only away from depth edges and where the surface is flat.
                     let accept = |u: f64, v: f64, pj: &Vector3<f64>, nj: &Vector3<f64>| {
-                        away_from_edges(target.view, u, v, self.cross_edge_blocks, pb.cfg)
+                        away_from_edges(target.depth, u, v, self.cross_edge_blocks)
                             && (self.cross_max_bend_m <= 0.0
-                                || bend_at(target.view, pb.intr, u, v, pj, nj, pb.cfg)
+                                || bend_at(target.depth, pb.intr, u, v, pj, nj)
                                     .is_some_and(|d| d <= self.cross_max_bend_m))
                     };
                     for (k, (p, np)) in fp.points.iter().zip(&fp.normals).enumerate() {
@@ -569,7 +568,7 @@ impl Joint<'_> {
     /// Per frame of each robot: the median absolute residual and the tests.
     fn frame_stats(&self, s: &State, a: &Association) -> [Vec<(f64, usize)>; 2] {
         let mut sums = self.sums(s, a);
-        let n0 = self.sides[0].views.len();
+        let n0 = self.sides[0].frames();
         let mut all: Vec<super::residuals::FrameSums> = sums
             .iter_mut()
             .map(|j| super::residuals::FrameSums {
@@ -648,30 +647,28 @@ pub fn refine_jointly(
     let ccfg = cfg.consistency();
     let views = [load_views(robots[0], cfg)?, load_views(robots[1], cfg)?];
     let problem = |k: usize| {
-        let views: &[DepthView] = &views[k];
-        Problem {
-            t_base_ee: robots[k].frames.iter().map(|f| f.t_base_ee).collect(),
-            views,
-            intr: &robots[k].intrinsics,
-            points: frame_points(views, &robots[k].intrinsics, &ccfg),
-            cfg: &ccfg,
-        }
+        Problem::new(
+            robots[k].frames.iter().map(|f| f.t_base_ee).collect(),
+            &views[k],
+            &robots[k].intrinsics,
+            &ccfg,
+        )
     };
     let sides = [problem(0), problem(1)];
     let cross_ok = [0, 1].map(|k| {
         let p = &sides[k];
         p.points
             .iter()
-            .zip(p.views)
-            .map(|(fp, view)| {
+            .zip(&p.depths)
+            .map(|(fp, depth)| {
                 fp.points
                     .iter()
                     .zip(&fp.normals)
                     .map(|(q, n)| {
                         let [u, v] = p.intr.project([q.x, q.y, q.z]);
-                        away_from_edges(view, u, v, cross_edge_blocks, &ccfg)
+                        away_from_edges(depth, u, v, cross_edge_blocks)
                             && (cross_max_bend_m <= 0.0
-                                || bend_at(view, p.intr, u, v, q, n, &ccfg)
+                                || bend_at(depth, p.intr, u, v, q, n)
                                     .is_some_and(|d| d <= cross_max_bend_m))
                     })
                     .collect()

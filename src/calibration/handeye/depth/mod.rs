@@ -40,8 +40,9 @@ use observe::{
     direction_words, directions, flange_motion, DofObservability, FlangeMotion, WeakDirection,
 };
 use rayon::prelude::*;
-use residuals::{frame_points, total, Association, FrameSums, Problem};
+use residuals::{total, Association, FrameSums, Problem};
 use serde::{Deserialize, Serialize};
+use std::cell::RefCell;
 
 /// Settings of [`refine_hand_eye_from_depth`]. Lengths in metres, angles in degrees.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -318,9 +319,34 @@ struct Solver<'a> {
     /// Characteristic range, metres.
     l: f64,
     assoc: &'a dyn Fn(f64) -> Association,
+    /// Evaluations kept (hand-eye, gate, sums): the first one (the initial hand-eye at the first gate,
+    /// which the report's "before" and each solve's first step ask for) and the last ones (the covariance
+    /// and the report's "after" ask for the solution's twice).
+    memo: RefCell<Vec<Evaluation>>,
 }
 
+/// One evaluation of [`Problem::sums`]: the hand-eye, the gate (metres) and the per-frame sums.
+type Evaluation = (Isometry3<f64>, f64, Vec<FrameSums>);
+
+/// Evaluations [`Solver::sums`] keeps: the first and the last `MEMO_SIZE − 1`.
+const MEMO_SIZE: usize = 3;
+
 impl Solver<'_> {
+    /// The per-frame sums at hand-eye `x` with the association of `gate` (metres); evaluated once per
+    /// (x, gate) among those kept (see `memo`).
+    fn sums(&self, x: &Isometry3<f64>, gate: f64) -> Vec<FrameSums> {
+        let mut memo = self.memo.borrow_mut();
+        if let Some((_, _, s)) = memo.iter().find(|(mx, mg, _)| mx == x && *mg == gate) {
+            return s.clone();
+        }
+        let s = self.problem.sums(x, &(self.assoc)(gate));
+        if memo.len() == MEMO_SIZE {
+            memo.remove(1);
+        }
+        memo.push((*x, gate, s.clone()));
+        s
+    }
+
     fn scale(&self) -> Matrix6<f64> {
         let l = self.l;
         Matrix6::from_diagonal(&Vector6::new(1.0 / l, 1.0 / l, 1.0 / l, 1.0, 1.0, 1.0))
@@ -343,10 +369,9 @@ impl Solver<'_> {
         let s_inv = s.try_inverse().unwrap_or_else(Matrix6::identity);
         let (mut x, mut iterations, mut converged) = (*x0, 0, false);
         for &gate in &cfg.gates_m {
-            let a = (self.assoc)(gate);
             for _ in 0..cfg.max_iterations {
                 iterations += 1;
-                let (h, g, _, _, tests) = total(&self.problem.sums(&x, &a));
+                let (h, g, _, _, tests) = total(&self.sums(&x, gate));
                 if tests < 6 {
                     break;
                 }
@@ -406,8 +431,7 @@ impl Solver<'_> {
     /// at the finest gate, and the frames with tests.
     fn covariance(&self, x: &Isometry3<f64>) -> (Matrix6<f64>, usize, usize, usize) {
         let cfg = self.cfg;
-        let fine = (self.assoc)(*cfg.gates_m.last().unwrap_or(&0.01));
-        let sums = self.problem.sums(x, &fine);
+        let sums = self.sums(x, *cfg.gates_m.last().unwrap_or(&0.01));
         let (h, _, chi2, weight, tests) = total(&sums);
         let wrong_side: usize = sums.iter().map(|s| s.wrong_side).sum();
         let (_, h_pinv, _) = solve(&h, &Vector6::zeros(), self.l, cfg.null_ratio);
@@ -660,28 +684,26 @@ pub fn refine_hand_eye_from_depth(
             &built
         }
     };
-    let problem = Problem {
-        t_base_ee: robot.frames.iter().map(|f| f.t_base_ee).collect(),
+    let problem = Problem::new(
+        robot.frames.iter().map(|f| f.t_base_ee).collect(),
         views,
-        intr: &robot.intrinsics,
-        points: frame_points(views, &robot.intrinsics, &ccfg),
-        cfg: &ccfg,
-    };
+        &robot.intrinsics,
+        &ccfg,
+    );
     let l = characteristic_range(&problem.points);
     let assoc = |gate: f64| association(cfg, gate);
-    let report_gate = assoc(cfg.gates_m[0]);
     let x0 = robot.t_ee_cam;
-    let before = frame_stats(&mut problem.sums(&x0, &report_gate));
-
     let solver = Solver {
         problem: &problem,
         cfg,
         l,
         assoc: &assoc,
+        memo: RefCell::new(Vec::new()),
     };
+    let before = frame_stats(&mut solver.sums(&x0, cfg.gates_m[0]));
     let (x, iterations, converged, cov) = solver.solve_freezing_weak(&x0);
     let (_, tests, wrong_side, frames_with_tests) = solver.covariance(&x);
-    let after = frame_stats(&mut problem.sums(&x, &report_gate));
+    let after = frame_stats(&mut solver.sums(&x, cfg.gates_m[0]));
 
     let motion = flange_motion(&problem.t_base_ee, &x0);
     let (dofs, weak_directions) = observability(&cov, l, cfg);

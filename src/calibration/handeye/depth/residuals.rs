@@ -8,7 +8,7 @@
 //! `dq/dω = −R·[p]× + [q]×`, `dq/dv = R − I`: the translation is seen only through the rotation between
 //! the frames.
 
-use crate::calibration::consistency::{sample_view, view_depth, ConsistencyConfig, Sample};
+use crate::calibration::consistency::{sample_view, ConsistencyConfig, Sample, SmoothDepth};
 use crate::camera::{DepthView, Intrinsics};
 use crate::registration::RobustKernel;
 use nalgebra::{Isometry3, Matrix3, Matrix6, RowVector6, Vector3, Vector6};
@@ -18,21 +18,20 @@ use rayon::prelude::*;
 /// toward the camera (the side the camera saw), from the view's block depths one block to each side.
 /// `None` where the view has no smooth surface there.
 pub(crate) fn surface_at(
-    view: &DepthView,
+    depth: &SmoothDepth,
     intr: &Intrinsics,
     u: f64,
     v: f64,
-    cfg: &ConsistencyConfig,
 ) -> Option<(Vector3<f64>, Vector3<f64>)> {
     let smooth = |u: f64, v: f64| -> Option<Vector3<f64>> {
-        let (near, far) = view_depth(view, u, v, cfg)?;
+        let (near, far) = depth.depth(u, v)?;
         if far - near > 1e-9 || near <= 0.0 {
             return None;
         }
         let p = intr.deproject([u, v], near);
         Some(Vector3::new(p[0], p[1], p[2]))
     };
-    let b = view.block as f64;
+    let b = depth.view.block as f64;
     let p = smooth(u, v)?;
     let du = smooth(u + b, v)? - smooth(u - b, v)?;
     let dv = smooth(u, v + b)? - smooth(u, v - b)?;
@@ -57,18 +56,14 @@ pub(crate) struct FramePoints {
 }
 
 /// Samples each view's smooth blocks (the consistency check's sample) and keeps those with a normal.
-pub(crate) fn frame_points(
-    views: &[DepthView],
-    intr: &Intrinsics,
-    cfg: &ConsistencyConfig,
-) -> Vec<FramePoints> {
-    views
+pub(crate) fn frame_points(depths: &[SmoothDepth], intr: &Intrinsics) -> Vec<FramePoints> {
+    depths
         .par_iter()
-        .map(|view| {
-            let samples: Vec<Sample> = sample_view(view, intr, cfg);
+        .map(|depth| {
+            let samples: Vec<Sample> = sample_view(depth.view, intr, depth.cfg);
             let mut out = FramePoints::default();
             for s in samples {
-                if let Some((p, n)) = surface_at(view, intr, s.u as f64, s.v as f64, cfg) {
+                if let Some((p, n)) = surface_at(depth, intr, s.u as f64, s.v as f64) {
                     out.points.push(p);
                     out.normals.push(n);
                 }
@@ -110,18 +105,45 @@ pub(crate) struct FrameSums {
     pub(crate) samples_used: usize,
 }
 
-/// Everything the residuals need: the flange poses, the views and the sampled points.
+/// Everything the residuals need: the flange poses, the views (their smooth depths tabulated) and the
+/// sampled points.
 pub(crate) struct Problem<'a> {
     pub(crate) t_base_ee: Vec<Isometry3<f64>>,
-    pub(crate) views: &'a [DepthView],
+    pub(crate) depths: Vec<SmoothDepth<'a>>,
     pub(crate) intr: &'a Intrinsics,
     pub(crate) points: Vec<FramePoints>,
     pub(crate) cfg: &'a ConsistencyConfig,
 }
 
+impl<'a> Problem<'a> {
+    /// The problem of one robot's frames: flange poses `t_base_ee` and depth `views` (one per frame) seen
+    /// through `intr`, sampled under `cfg`.
+    pub(crate) fn new(
+        t_base_ee: Vec<Isometry3<f64>>,
+        views: &'a [DepthView],
+        intr: &'a Intrinsics,
+        cfg: &'a ConsistencyConfig,
+    ) -> Self {
+        let depths: Vec<SmoothDepth> = views.par_iter().map(|v| SmoothDepth::new(v, cfg)).collect();
+        let points = frame_points(&depths, intr);
+        Problem {
+            t_base_ee,
+            depths,
+            intr,
+            points,
+            cfg,
+        }
+    }
+
+    /// The number of frames (views).
+    pub(crate) fn frames(&self) -> usize {
+        self.depths.len()
+    }
+}
+
 /// One camera's depth, as points are tested against it.
 pub(crate) struct Target<'a> {
-    pub(crate) view: &'a DepthView,
+    pub(crate) depth: &'a SmoothDepth<'a>,
     pub(crate) intr: &'a Intrinsics,
     pub(crate) cfg: &'a ConsistencyConfig,
     /// Image width and height, pixels.
@@ -165,7 +187,7 @@ pub(crate) fn test_point(
     if !(u >= -0.5 && v >= -0.5 && u < w - 0.5 && v < h - 0.5) {
         return PointTest::Miss;
     }
-    let Some((pj, nj)) = surface_at(t.view, t.intr, u, v, t.cfg) else {
+    let Some((pj, nj)) = surface_at(t.depth, t.intr, u, v) else {
         return PointTest::Miss;
     };
     let res = nj.dot(&(q - pj));
@@ -214,7 +236,7 @@ impl PointTest {
 impl Problem<'_> {
     /// The per-frame sums under hand-eye `x` (frame order, deterministic at any thread count).
     pub(crate) fn sums(&self, x: &Isometry3<f64>, a: &Association) -> Vec<FrameSums> {
-        let n = self.views.len();
+        let n = self.frames();
         let x_inv = x.inverse();
         let size = (self.intr.width as f64, self.intr.height as f64);
         (0..n)
@@ -232,7 +254,7 @@ impl Problem<'_> {
                     let tv = t.translation.vector;
                     let r_minus_i = r - Matrix3::identity();
                     let target = Target {
-                        view: &self.views[j],
+                        depth: &self.depths[j],
                         intr: self.intr,
                         cfg: self.cfg,
                         size,
@@ -323,13 +345,7 @@ mod tests {
         let mut intr4 = intr.clone();
         intr4.depth_scale = 1e-4;
         let views: Vec<DepthView> = poses.iter().map(render).collect();
-        let problem = Problem {
-            t_base_ee: poses.to_vec(),
-            views: &views,
-            intr: &intr4,
-            points: frame_points(&views, &intr4, &cfg),
-            cfg: &cfg,
-        };
+        let problem = Problem::new(poses.to_vec(), &views, &intr4, &cfg);
         let a = Association {
             gate_m: 0.05,
             min_normal_cos: 0.5,
