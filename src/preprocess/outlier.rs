@@ -65,8 +65,8 @@ pub fn statistical_inliers(
     // k + 1 because the query point itself is among its nearest neighbours.
     let mean_dist: Vec<f64> = points
         .par_iter()
-        .map(|p| {
-            let nn = index.knn(p, cfg.k + 1);
+        .map_init(Vec::new, |nn, p| {
+            index.knn_into(p, cfg.k + 1, nn);
             let s: f64 = nn.iter().skip(1).map(|&(_, d2)| (d2 as f64).sqrt()).sum();
             s / (nn.len().saturating_sub(1)).max(1) as f64
         })

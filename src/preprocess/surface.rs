@@ -102,21 +102,21 @@ pub fn project_to_weighted_planes(
     let max_shift = cfg.max_shift_voxels * voxel;
     let out: Vec<([f32; 3], bool)> = points
         .par_iter()
-        .map(|p| {
-            let nb = index.within(p, radius, cfg.max_neighbors);
+        .map_init(Vec::new, |nb, p| {
+            index.within_into(p, radius, cfg.max_neighbors, nb);
             if nb.len() < 6 {
                 return (*p, false);
             }
             let mut sw = 0f64;
             let mut mean = Vector3::zeros();
-            for &(j, _) in &nb {
+            for &(j, _) in nb.iter() {
                 let w = weights[j].max(1) as f64;
                 sw += w;
                 mean += w * to_v64(&points[j]);
             }
             mean /= sw;
             let mut c = Matrix3::zeros();
-            for &(j, _) in &nb {
+            for &(j, _) in nb.iter() {
                 let d = to_v64(&points[j]) - mean;
                 c += (weights[j].max(1) as f64 / sw) * d * d.transpose();
             }
