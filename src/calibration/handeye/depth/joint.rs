@@ -23,6 +23,7 @@
 
 use super::observe::{DofObservability, WeakDirection};
 use super::residuals::{skew, test_point, Association, FramePoints, Problem, Target};
+use super::Memo;
 use super::{
     association, characteristic_range, frame_residuals, frame_stats, load_views, observability,
     observability_reasons, FrameDepthResidual, HandEyeDepthConfig,
@@ -162,7 +163,7 @@ pub struct JointHandEyeResult {
 }
 
 /// The current estimate: both hand-eyes and `T_base1_base2`.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 struct State {
     x: [Isometry3<f64>; 2],
     b: Isometry3<f64>,
@@ -272,6 +273,8 @@ struct Joint<'a> {
     cross_ok: [Vec<Vec<bool>>; 2],
     /// Characteristic ranges: robot 1, robot 2, the base-to-base transform.
     l: [f64; 3],
+    /// Evaluations of [`Joint::sums`] by (state, gate).
+    memo: Memo<(State, f64), Vec<JointSums>>,
 }
 
 impl Joint<'_> {
@@ -287,8 +290,14 @@ impl Joint<'_> {
         })
     }
 
-    /// Per frame of both robots (robot 1's frames, then robot 2's): own and cross-robot sums under `s`.
+    /// Per frame of both robots (robot 1's frames, then robot 2's): own and cross-robot sums under `s`,
+    /// through the memo.
     fn sums(&self, s: &State, a: &Association) -> Vec<JointSums> {
+        self.memo.get_or((*s, a.gate_m), || self.evaluate(s, a))
+    }
+
+    /// [`Self::sums`], evaluated.
+    fn evaluate(&self, s: &State, a: &Association) -> Vec<JointSums> {
         let mut out = Vec::new();
         for r in 0..2 {
             let own = self.sides[r].sums(&s.x[r], a);
@@ -684,6 +693,7 @@ pub fn refine_jointly(
         cross_edge_blocks,
         cross_max_bend_m,
         cross_ok,
+        memo: Memo::new(3),
     };
     let s0 = State {
         x: [robots[0].t_ee_cam, robots[1].t_ee_cam],

@@ -42,7 +42,7 @@ use observe::{
 use rayon::prelude::*;
 use residuals::{total, Association, FrameSums, Problem};
 use serde::{Deserialize, Serialize};
-use std::cell::RefCell;
+use std::sync::Mutex;
 
 /// Settings of [`refine_hand_eye_from_depth`]. Lengths in metres, angles in degrees.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -319,32 +319,49 @@ struct Solver<'a> {
     /// Characteristic range, metres.
     l: f64,
     assoc: &'a dyn Fn(f64) -> Association,
-    /// Evaluations kept (hand-eye, gate, sums): the first one (the initial hand-eye at the first gate,
-    /// which the report's "before" and each solve's first step ask for) and the last ones (the covariance
-    /// and the report's "after" ask for the solution's twice).
-    memo: RefCell<Vec<Evaluation>>,
+    /// Evaluations by (hand-eye, gate).
+    memo: Memo<(Isometry3<f64>, f64), Vec<FrameSums>>,
 }
 
-/// One evaluation of [`Problem::sums`]: the hand-eye, the gate (metres) and the per-frame sums.
-type Evaluation = (Isometry3<f64>, f64, Vec<FrameSums>);
+/// Evaluations of a costly function kept by key: the first one (in the refinements, the starting point
+/// at the first gate, which the report's "before" and each solve's first step ask for) and the last
+/// `cap − 1` (the covariance and the report's "after" ask for the solution's twice).
+pub(crate) struct Memo<K, V> {
+    cap: usize,
+    entries: Mutex<Vec<(K, V)>>,
+}
 
-/// Evaluations [`Solver::sums`] keeps: the first and the last `MEMO_SIZE − 1`.
-const MEMO_SIZE: usize = 3;
+impl<K: PartialEq, V: Clone> Memo<K, V> {
+    /// An empty memo keeping at most `cap` (at least 2) evaluations.
+    pub(crate) fn new(cap: usize) -> Self {
+        Memo {
+            cap: cap.max(2),
+            entries: Mutex::new(Vec::new()),
+        }
+    }
+
+    /// The value kept for `key`, else `eval()` (then kept).
+    pub(crate) fn get_or(&self, key: K, eval: impl FnOnce() -> V) -> V {
+        let kept = |e: &[(K, V)]| e.iter().find(|(k, _)| *k == key).map(|(_, v)| v.clone());
+        if let Some(v) = kept(&self.entries.lock().unwrap_or_else(|e| e.into_inner())) {
+            return v;
+        }
+        // Evaluated without the lock held (the evaluation runs in parallel).
+        let v = eval();
+        let mut entries = self.entries.lock().unwrap_or_else(|e| e.into_inner());
+        if entries.len() == self.cap {
+            entries.remove(1);
+        }
+        entries.push((key, v.clone()));
+        v
+    }
+}
 
 impl Solver<'_> {
-    /// The per-frame sums at hand-eye `x` with the association of `gate` (metres); evaluated once per
-    /// (x, gate) among those kept (see `memo`).
+    /// The per-frame sums at hand-eye `x` with the association of `gate` (metres), through the memo.
     fn sums(&self, x: &Isometry3<f64>, gate: f64) -> Vec<FrameSums> {
-        let mut memo = self.memo.borrow_mut();
-        if let Some((_, _, s)) = memo.iter().find(|(mx, mg, _)| mx == x && *mg == gate) {
-            return s.clone();
-        }
-        let s = self.problem.sums(x, &(self.assoc)(gate));
-        if memo.len() == MEMO_SIZE {
-            memo.remove(1);
-        }
-        memo.push((*x, gate, s.clone()));
-        s
+        self.memo
+            .get_or((*x, gate), || self.problem.sums(x, &(self.assoc)(gate)))
     }
 
     fn scale(&self) -> Matrix6<f64> {
@@ -698,7 +715,7 @@ pub fn refine_hand_eye_from_depth(
         cfg,
         l,
         assoc: &assoc,
-        memo: RefCell::new(Vec::new()),
+        memo: Memo::new(3),
     };
     let before = frame_stats(&mut solver.sums(&x0, cfg.gates_m[0]));
     let (x, iterations, converged, cov) = solver.solve_freezing_weak(&x0);
@@ -779,4 +796,38 @@ pub fn refine_hand_eye_from_depth(
         reasons,
         suggestions,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Memo;
+    use std::cell::Cell;
+
+    /// The memo evaluates a key once while it is kept, keeps the first key for good and the last ones
+    /// after it.
+    #[test]
+    fn memo_keeps_the_first_and_the_last_evaluations() {
+        let memo: Memo<u32, u32> = Memo::new(3);
+        let calls = Cell::new(0);
+        let get = |k: u32| {
+            memo.get_or(k, || {
+                calls.set(calls.get() + 1);
+                10 * k
+            })
+        };
+        assert_eq!(get(1), 10);
+        assert_eq!(get(1), 10);
+        assert_eq!(calls.get(), 1);
+        for k in 2..=5 {
+            assert_eq!(get(k), 10 * k);
+        }
+        assert_eq!(calls.get(), 5);
+        // Kept: 1 (the first), 4 and 5 (the last two).
+        for k in [1, 4, 5] {
+            assert_eq!(get(k), 10 * k);
+        }
+        assert_eq!(calls.get(), 5);
+        assert_eq!(get(2), 20);
+        assert_eq!(calls.get(), 6);
+    }
 }
