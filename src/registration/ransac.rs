@@ -233,9 +233,8 @@ fn consistency_graph(ps: &[[f32; 3]], qs: &[[f32; 3]], tol: f32, min_len: f32) -
         let (qx, qy, qz) = (lane(&q.x), lane(&q.y), lane(&q.z));
         let mut ok = [false; LANES];
         for k in 0..LANES {
-            let dp2 = sq(px[k] - pi[0]) + sq(py[k] - pi[1]) + sq(pz[k] - pi[2]);
-            let dq2 = sq(qx[k] - qi[0]) + sq(qy[k] - qi[1]) + sq(qz[k] - qi[2]);
-            ok[k] = ((dp2.sqrt() - dq2.sqrt()).abs() < tol) & (dp2 > min2) & (dq2 > min2);
+            let (pj, qj) = ([px[k], py[k], pz[k]], [qx[k], qy[k], qz[k]]);
+            ok[k] = edge_agrees(&pj, &qj, pi, qi, tol, min2);
         }
         // The agreeing lanes as bits, appended by their set bits (about one pair in six agrees: a branch
         // per pair would mispredict).
@@ -277,7 +276,8 @@ fn sq(x: f32) -> f32 {
     x * x
 }
 
-/// The scalar form of [`consistency_graph`]'s test, bit for bit.
+/// [`consistency_graph`]'s test: match `j`'s lengths to match `i`'s points agree within `tol`, both
+/// longer than `√min2`.
 #[inline]
 fn edge_agrees(
     pj: &[f32; 3],
