@@ -353,7 +353,6 @@ impl Joint<'_> {
                     let target = Target {
                         depth: &pb.depths[j],
                         intr: pb.intr,
-                        cfg: pb.cfg,
                         size,
                     };
                     // Cross-robot tests only away from depth edges and where the surface is flat.

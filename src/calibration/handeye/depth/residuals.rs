@@ -143,9 +143,9 @@ impl<'a> Problem<'a> {
 
 /// One camera's depth, as points are tested against it.
 pub(crate) struct Target<'a> {
+    /// Its depth, with the settings it was tabulated under (the noise model of its depths).
     pub(crate) depth: &'a SmoothDepth<'a>,
     pub(crate) intr: &'a Intrinsics,
-    pub(crate) cfg: &'a ConsistencyConfig,
     /// Image width and height, pixels.
     pub(crate) size: (f64, f64),
 }
@@ -200,7 +200,7 @@ pub(crate) fn test_point(
     if ni.dot(&nj) < asn.min_normal_cos || ni.dot(q) > 0.0 {
         return PointTest::WrongSide;
     }
-    let sigma = (point_cfg.sigma(p.z).powi(2) + t.cfg.sigma(pj.z).powi(2))
+    let sigma = (point_cfg.sigma(p.z).powi(2) + t.depth.cfg.sigma(pj.z).powi(2))
         .sqrt()
         .max(1e-5);
     let weight = asn.kernel.weight(res / sigma, asn.kernel_sigmas);
@@ -256,7 +256,6 @@ impl Problem<'_> {
                     let target = Target {
                         depth: &self.depths[j],
                         intr: self.intr,
-                        cfg: self.cfg,
                         size,
                     };
                     for (k, (p, np)) in fp.points.iter().zip(&fp.normals).enumerate() {
