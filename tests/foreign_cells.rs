@@ -9,152 +9,16 @@
 //! * `DEPTHCAL_FOREIGN_SWEEP=N cargo test --release --test foreign_cells sweep -- --nocapture` runs N seeds
 //!   and prints a table (seed, scene, error, σ, normalised errors, 6-D Mahalanobis distance, exit, trusted).
 //!
-//! Normalised errors: with `Σ` the JSON `covariance` (6x6, `[rx, ry, rz (rad), tx, ty, tz (m)]`, left
-//! increment in the reference base frame, i.e. `T = exp(δ) · T_true`), the error increment is
-//! `δ = [log(R_est · R_trueᵀ), t_est − R_est · R_trueᵀ · t_true]`, the rotation vector and the translation of
-//! `T_est · T_true⁻¹`. `n_rot = |δ_rot| / sqrt(trace Σ_rot)`, `n_trans = |δ_trans| / sqrt(trace Σ_trans)`
-//! and `mahalanobis = sqrt(δᵀ Σ⁻¹ δ)` (6 degrees of freedom: about sqrt(6) ≈ 2.4 on average when Σ is
-//! honest).
+//! Normalised errors (`n_rot`, `n_trans`, `mahal`): see `tests/common/outcome.rs`.
 
 mod common;
 use common::depthcal;
 use common::foreign::{generate, ForeignCell, ForeignConfig, Sabotage, SceneKind};
-use nalgebra::{Isometry3, Matrix4, Matrix6, Rotation3, Translation3, UnitQuaternion, Vector6};
-
-/// One `calibrate --json` run and what was read from it.
-#[derive(Debug)]
-struct Outcome {
-    code: i32,
-    json: Option<serde_json::Value>,
-    stderr: String,
-    /// `error_vs_truth` from the JSON (degrees, mm), else computed here from `transform`.
-    rot_deg: Option<f64>,
-    trans_mm: Option<f64>,
-    /// Root of the trace of the rotation (degrees) and translation (mm) covariance blocks.
-    sigma_rot_deg: Option<f64>,
-    sigma_trans_mm: Option<f64>,
-    n_rot: Option<f64>,
-    n_trans: Option<f64>,
-    mahalanobis: Option<f64>,
-    trusted: Option<bool>,
-    degenerate: Option<bool>,
-    /// Axis of the rotation error `R_est · R_trueᵀ` in base1.
-    err_axis: Option<nalgebra::Vector3<f64>>,
-    secs: f64,
-}
-
-fn matrix4(v: &serde_json::Value) -> Option<Isometry3<f64>> {
-    let rows = v.get("matrix").unwrap_or(v).as_array()?;
-    let mut m = Matrix4::zeros();
-    for (r, row) in rows.iter().enumerate().take(4) {
-        for (c, x) in row.as_array()?.iter().enumerate().take(4) {
-            m[(r, c)] = x.as_f64()?;
-        }
-    }
-    let rot = Rotation3::from_matrix(&m.fixed_view::<3, 3>(0, 0).into_owned());
-    Some(Isometry3::from_parts(
-        Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]),
-        UnitQuaternion::from_rotation_matrix(&rot),
-    ))
-}
-
-fn matrix6(v: &serde_json::Value) -> Option<Matrix6<f64>> {
-    let rows = v.as_array()?;
-    if rows.len() != 6 {
-        return None;
-    }
-    let mut m = Matrix6::zeros();
-    for (r, row) in rows.iter().enumerate() {
-        let row = row.as_array()?;
-        if row.len() != 6 {
-            return None;
-        }
-        for (c, x) in row.iter().enumerate() {
-            m[(r, c)] = x.as_f64()?;
-        }
-    }
-    Some(m)
-}
-
-/// The left increment `δ = [log(R_e R_tᵀ), t_e − R_e R_tᵀ t_t]` with `T_est = exp(δ) · T_true`.
-fn left_increment(est: &Isometry3<f64>, truth: &Isometry3<f64>) -> Vector6<f64> {
-    let d = est * truth.inverse();
-    let w = d.rotation.scaled_axis();
-    let v = d.translation.vector;
-    Vector6::new(w.x, w.y, w.z, v.x, v.y, v.z)
-}
+use common::outcome::{f, Outcome};
+use nalgebra::UnitQuaternion;
 
 fn calibrate(cell: &ForeignCell, extra: &[&str]) -> Outcome {
-    let dir = cell.dir.to_str().unwrap();
-    let mut args = vec!["calibrate", dir, "--json", "--threads", "2"];
-    args.extend_from_slice(extra);
-    let t0 = std::time::Instant::now();
-    let (code, out, stderr) = depthcal(&args);
-    let secs = t0.elapsed().as_secs_f64();
-    let json: Option<serde_json::Value> = serde_json::from_str(&out).ok();
-    let mut o = Outcome {
-        code,
-        json: json.clone(),
-        stderr,
-        rot_deg: None,
-        trans_mm: None,
-        sigma_rot_deg: None,
-        sigma_trans_mm: None,
-        n_rot: None,
-        n_trans: None,
-        mahalanobis: None,
-        trusted: None,
-        degenerate: None,
-        err_axis: None,
-        secs,
-    };
-    let Some(v) = json else {
-        return o;
-    };
-    // Tolerant reading: every field may be absent or renamed by the engine changes under way.
-    o.trusted = v
-        .get("trusted")
-        .and_then(|t| t.as_bool())
-        .or_else(|| v.pointer("/quality/trusted").and_then(|t| t.as_bool()));
-    o.degenerate = v.get("degenerate").and_then(|t| t.as_bool());
-    let est = v.get("transform").and_then(matrix4);
-    o.rot_deg = v
-        .pointer("/error_vs_truth/rotation_deg")
-        .and_then(|x| x.as_f64());
-    o.trans_mm = v
-        .pointer("/error_vs_truth/translation_m")
-        .and_then(|x| x.as_f64())
-        .map(|m| m * 1e3);
-    if let Some(est) = est {
-        let d = left_increment(&est, &cell.truth);
-        let w = d.fixed_rows::<3>(0).into_owned();
-        o.err_axis = (w.norm() > 1e-12).then(|| w / w.norm());
-        if o.rot_deg.is_none() {
-            o.rot_deg = Some(d.fixed_rows::<3>(0).norm().to_degrees());
-        }
-        if o.trans_mm.is_none() {
-            o.trans_mm =
-                Some((est.translation.vector - cell.truth.translation.vector).norm() * 1e3);
-        }
-        if let Some(cov) = v.get("covariance").and_then(matrix6) {
-            let tr_r: f64 = (0..3).map(|i| cov[(i, i)]).sum();
-            let tr_t: f64 = (3..6).map(|i| cov[(i, i)]).sum();
-            o.sigma_rot_deg = Some(tr_r.max(0.0).sqrt().to_degrees());
-            o.sigma_trans_mm = Some(tr_t.max(0.0).sqrt() * 1e3);
-            o.n_rot = Some(d.fixed_rows::<3>(0).norm() / tr_r.sqrt());
-            o.n_trans = Some(d.fixed_rows::<3>(3).norm() / tr_t.sqrt());
-            // Pseudo-inverse so a singular (degenerate) covariance still gives a number.
-            let sym = (cov + cov.transpose()) * 0.5;
-            if let Ok(inv) = sym.pseudo_inverse(1e-30) {
-                o.mahalanobis = Some((d.transpose() * inv * d)[(0, 0)].max(0.0).sqrt());
-            }
-        }
-    }
-    o
-}
-
-fn f(x: Option<f64>, prec: usize) -> String {
-    x.map_or("-".into(), |v| format!("{v:.prec$}"))
+    common::outcome::calibrate(&cell.dir, &cell.truth, extra)
 }
 
 fn header() -> String {

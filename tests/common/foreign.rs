@@ -315,6 +315,109 @@ impl SceneKind {
     }
 }
 
+/// Where robot 2 stands relative to robot 1 and the table.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// Across the table, yawed about 180° (the original cell).
+    Facing,
+    /// At 90° round the table: robot 2's base beside the table's long side, yawed about 90°.
+    RightAngle,
+    /// Both on the same side of the table, 0.8-1.2 m apart, the same yaw (± `yaw_jitter_deg`).
+    SideBySide,
+}
+
+/// What is under and around the table.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Ground {
+    /// A table on legs and a floor 0.7-0.8 m below its top (the original cell).
+    TableOnLegs,
+    /// No table: the objects stand on a wide floor at the table's height.
+    FloorOnly,
+    /// The table on legs and nothing else in range (the original `floor: false`).
+    Nothing,
+}
+
+/// The table top's outline.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TableShape {
+    /// A rectangle (the original cell).
+    Rectangle,
+    /// A disc on one central column.
+    Round,
+    /// An L of two boxes (not symmetric under a half turn about the vertical).
+    Irregular,
+}
+
+/// The objects on the table (the table scene only).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Objects {
+    /// Boxes (axis-aligned and turned), spheres and vertical cylinders (the original cell).
+    Asymmetric,
+    /// Only spheres and vertical cylinders, each symmetric about the vertical; their arrangement is random.
+    SymmetricOnly,
+}
+
+/// Where each robot's cameras look.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Aim {
+    /// Near the table centre (the original cell).
+    Shared,
+    /// At points 0.25-0.35 m from the table centre toward the robot's own base, from a narrower and
+    /// steeper arc (±35° azimuth, 60-80° elevation, 0.5-0.7 m away): about 50-70 % shared.
+    OwnSide,
+    /// Farther toward the own side (±25°, 68-83°, 0.4-0.55 m), the distance bisected on coarse renders
+    /// until the robots share a drawn 17-28 % (the achieved figure is in `shared_fraction`).
+    LowOverlap,
+}
+
+macro_rules! enum_names {
+    ($t:ty { $($v:ident => $n:literal),* $(,)? }) => {
+        impl $t {
+            /// A short name for tables, file names and `ground_truth.json`.
+            pub fn name(self) -> &'static str {
+                match self { $(<$t>::$v => $n),* }
+            }
+        }
+    };
+}
+enum_names!(Layout { Facing => "facing", RightAngle => "right_angle", SideBySide => "side_by_side" });
+enum_names!(Ground { TableOnLegs => "table_on_legs", FloorOnly => "floor_only", Nothing => "nothing" });
+enum_names!(TableShape { Rectangle => "rectangle", Round => "round", Irregular => "irregular" });
+enum_names!(Objects { Asymmetric => "asymmetric", SymmetricOnly => "symmetric_only" });
+enum_names!(Aim { Shared => "shared", OwnSide => "own_side", LowOverlap => "low_overlap" });
+
+/// The table top's outline for placing objects on it (`None` in [`Placer`]: the placement box is on it).
+#[derive(Clone, Copy, Debug)]
+enum Top {
+    /// A disc: centre, radius.
+    Disc(f64, f64, f64),
+    /// A union of two axis-aligned rectangles `(x0, x1, y0, y1)`.
+    Rects([(f64, f64, f64, f64); 2]),
+}
+
+impl Top {
+    /// Whether the footprint disc at `(x, y)` with radius `r` lies on the top.
+    fn holds(&self, x: f64, y: f64, r: f64) -> bool {
+        match *self {
+            Top::Disc(cx, cy, rr) => (x - cx).hypot(y - cy) + r < rr - 0.01,
+            Top::Rects(rs) => rs.iter().any(|&(x0, x1, y0, y1)| {
+                x - r > x0 + 0.01 && x + r < x1 - 0.01 && y - r > y0 + 0.01 && y + r < y1 - 0.01
+            }),
+        }
+    }
+}
+
+/// The options of [`build_scene`] beyond the scene kind (all default to the original cell).
+#[derive(Clone, Copy, Debug)]
+struct SceneOptions {
+    back_wall: bool,
+    ground: Ground,
+    table_shape: TableShape,
+    objects: Objects,
+    /// Seed of the draws the new options need (the original draws stay as they were).
+    seed: u64,
+}
+
 /// The primitives of a scene, split in always-tested ones and a cluster with a common bounding box.
 #[derive(Clone, Debug)]
 pub struct Scene {
@@ -331,6 +434,8 @@ pub struct Scene {
     pub table_centre: Vector3<f64>,
     /// The back wall's plane `y = back_wall_y`, if any.
     pub back_wall_y: Option<f64>,
+    /// The floor's height (world z), also when there is no floor (where it would be).
+    pub floor_z: f64,
 }
 
 impl Scene {
@@ -354,6 +459,7 @@ impl Scene {
             table_top,
             table_centre,
             back_wall_y: None,
+            floor_z: table_top - 0.75,
         }
     }
 
@@ -423,6 +529,8 @@ struct Placer {
     taken: Vec<(f64, f64, f64)>,
     x: (f64, f64),
     y: (f64, f64),
+    /// The table top when it does not cover the whole placement box.
+    top: Option<Top>,
 }
 
 impl Placer {
@@ -434,6 +542,7 @@ impl Placer {
                 .taken
                 .iter()
                 .all(|&(tx, ty, tr)| (tx - x).hypot(ty - y) > tr + radius + 0.015)
+                && self.top.is_none_or(|t| t.holds(x, y, radius))
             {
                 self.taken.push((x, y, radius));
                 return Some((x, y));
@@ -451,46 +560,113 @@ fn build_scene(
     centre: Vector3<f64>,
     length: f64,
     width: f64,
-    back_wall: bool,
-    with_floor: bool,
+    opt: SceneOptions,
 ) -> Scene {
     let top = centre.z;
     let thickness = 0.04;
     let floor = top - rng.range(0.70, 0.80);
     let (cx, cy) = (centre.x, centre.y);
+    // The new options draw from their own generator so the original cells stay as they were.
+    let mut xrng = Rand::keyed(&[opt.seed, 0x7ab1e]);
     let mut big = Vec::new();
-    if with_floor {
-        big.push(Prim::Plane {
+    match opt.ground {
+        Ground::TableOnLegs => big.push(Prim::Plane {
             n: Vector3::z(),
             k: floor,
-        });
+        }),
+        Ground::FloorOnly => big.push(Prim::Plane {
+            n: Vector3::z(),
+            k: top,
+        }),
+        Ground::Nothing => {}
     }
+    let floor_z = if opt.ground == Ground::FloorOnly {
+        top
+    } else {
+        floor
+    };
     let mut objects = Vec::new();
+    let slab = |x0: f64, x1: f64, y0: f64, y1: f64| Prim::Cuboid {
+        c: Vector3::new((x0 + x1) / 2.0, (y0 + y1) / 2.0, top - thickness / 2.0),
+        r: Matrix3::identity(),
+        h: Vector3::new((x1 - x0) / 2.0, (y1 - y0) / 2.0, thickness / 2.0),
+    };
     let table = |l: f64, w: f64| Prim::Cuboid {
         c: Vector3::new(cx, cy, top - thickness / 2.0),
         r: Matrix3::identity(),
         h: Vector3::new(l / 2.0, w / 2.0, thickness / 2.0),
     };
+    let leg = |x: f64, y: f64| Prim::Cylinder {
+        c: Vector3::new(x, y, floor),
+        r: 0.025,
+        h: top - thickness - floor,
+    };
     if kind == SceneKind::BareTable {
         // Larger than any view: no edge, no floor in sight.
         big.push(table(5.0, 5.0));
-        return Scene::new(big, objects, top, centre);
+        let mut scene = Scene::new(big, objects, top, centre);
+        scene.floor_z = floor_z;
+        return scene;
     }
-    big.push(table(length, width));
-    for (sx, sy) in [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)] {
-        objects.push(Prim::Cylinder {
-            c: Vector3::new(
-                cx + sx * (length / 2.0 - 0.06),
-                cy + sy * (width / 2.0 - 0.06),
-                floor,
-            ),
-            r: 0.025,
-            h: top - thickness - floor,
-        });
+    let mut top_outline = None;
+    match (opt.ground, opt.table_shape) {
+        (Ground::FloorOnly, _) => {}
+        (_, TableShape::Rectangle) => {
+            big.push(table(length, width));
+            for (sx, sy) in [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)] {
+                objects.push(leg(
+                    cx + sx * (length / 2.0 - 0.06),
+                    cy + sy * (width / 2.0 - 0.06),
+                ));
+            }
+        }
+        (_, TableShape::Round) => {
+            let r = 0.5 * length.min(width) + xrng.range(0.0, 0.08);
+            big.push(Prim::Cylinder {
+                c: Vector3::new(cx, cy, top - thickness),
+                r,
+                h: thickness,
+            });
+            objects.push(Prim::Cylinder {
+                c: Vector3::new(cx, cy, floor),
+                r: 0.05,
+                h: top - thickness - floor,
+            });
+            top_outline = Some(Top::Disc(cx, cy, r));
+        }
+        (_, TableShape::Irregular) => {
+            // An L: the full length over part of the width on one side, and an extension over part of
+            // the length on one end of the other side.
+            let sx = if xrng.uniform() < 0.5 { -1.0 } else { 1.0 };
+            let sy = if xrng.uniform() < 0.5 { -1.0 } else { 1.0 };
+            let wa = width * xrng.range(0.55, 0.65);
+            let la = length * xrng.range(0.45, 0.6);
+            let (x0, x1) = (cx - length / 2.0, cx + length / 2.0);
+            let y_edge = cy - sy * width / 2.0;
+            let y_split = y_edge + sy * wa;
+            let y_far = cy + sy * width / 2.0;
+            let main = (x0, x1, y_edge.min(y_split), y_edge.max(y_split));
+            let (e0, e1) = if sx > 0.0 {
+                (x1 - la, x1)
+            } else {
+                (x0, x0 + la)
+            };
+            let ext = (e0, e1, y_split.min(y_far), y_split.max(y_far));
+            for &(a0, a1, b0, b1) in &[main, ext] {
+                big.push(slab(a0, a1, b0, b1));
+                for (px, py) in [(a0, b0), (a0, b1), (a1, b0), (a1, b1)] {
+                    objects.push(leg(
+                        px + 0.06 * (a0 + a1 - 2.0 * px).signum(),
+                        py + 0.06 * (b0 + b1 - 2.0 * py).signum(),
+                    ));
+                }
+            }
+            top_outline = Some(Top::Rects([main, ext]));
+        }
     }
     let back = cy + width / 2.0; // the far edge (world +y)
     let mut wall = None;
-    if back_wall || kind == SceneKind::ClutteredShelf {
+    if opt.back_wall || kind == SceneKind::ClutteredShelf {
         big.push(Prim::Plane {
             n: Vector3::y(),
             k: back + 0.04,
@@ -504,8 +680,29 @@ fn build_scene(
                 taken: Vec::new(),
                 x: (cx - half_x, cx + half_x),
                 y: (cy - 0.3, cy + 0.3),
+                top: top_outline,
             };
             for i in 0..4 {
+                if opt.objects == Objects::SymmetricOnly {
+                    // A sphere or a vertical cylinder in place of each box.
+                    let r = rng.range(0.03, 0.065);
+                    let h = rng.range(0.06, 0.25);
+                    if let Some((x, y)) = placer.place(rng, r) {
+                        objects.push(if i % 2 == 0 {
+                            Prim::Sphere {
+                                c: Vector3::new(x, y, top + r),
+                                r,
+                            }
+                        } else {
+                            Prim::Cylinder {
+                                c: Vector3::new(x, y, top),
+                                r,
+                                h,
+                            }
+                        });
+                    }
+                    continue;
+                }
                 let h = Vector3::new(
                     rng.range(0.03, 0.09),
                     rng.range(0.03, 0.09),
@@ -588,6 +785,7 @@ fn build_scene(
                 taken: Vec::new(),
                 x: (cx - half_x, cx + half_x),
                 y: (cy - 0.3, yc - depth - 0.02),
+                top: top_outline,
             };
             for i in 0..6 {
                 let h = Vector3::new(
@@ -627,6 +825,7 @@ fn build_scene(
     }
     let mut scene = Scene::new(big, objects, top, centre);
     scene.back_wall_y = wall;
+    scene.floor_z = floor_z;
     scene
 }
 
@@ -680,6 +879,14 @@ pub struct View {
     pub clean: Vec<f32>,
 }
 
+/// The depth artefacts beyond per-pixel noise and dropout.
+#[derive(Clone, Copy, Debug, Default)]
+struct Artefacts {
+    flying_pixels: bool,
+    holes: bool,
+}
+
+#[allow(clippy::too_many_arguments)]
 fn render(
     scene: &Scene,
     k: &Pinhole,
@@ -687,6 +894,7 @@ fn render(
     noise: &Noise,
     depth_scale: f64,
     keys: [u64; 3],
+    artefacts: Artefacts,
 ) -> View {
     let (w, h) = (k.width as usize, k.height as usize);
     let mut depth = vec![0u16; w * h];
@@ -723,10 +931,90 @@ fn render(
                 }
             }
         });
+    if artefacts.flying_pixels {
+        add_flying_pixels(&mut depth, &clean, w, h, noise, depth_scale, keys);
+    }
+    if artefacts.holes {
+        add_holes(&mut depth, w, h, keys);
+    }
     View {
         t_base1_cam: *t_w_cam,
         depth,
         clean,
+    }
+}
+
+/// Whether the noise-free depth jumps within the 3x3 neighbourhood of `(u, v)`: `(near, far)` if so.
+pub fn depth_edge(clean: &[f32], w: usize, h: usize, u: usize, v: usize) -> Option<(f64, f64)> {
+    let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
+    for y in v.saturating_sub(1)..(v + 2).min(h) {
+        for x in u.saturating_sub(1)..(u + 2).min(w) {
+            let z = clean[y * w + x] as f64;
+            if z > 0.0 {
+                lo = lo.min(z);
+                hi = hi.max(z);
+            }
+        }
+    }
+    (hi > 0.0 && hi - lo > 0.03 + 0.03 * lo).then_some((lo, hi))
+}
+
+/// RealSense-like edge artefacts: on the 1-2 pixel band along each depth discontinuity, about 60 % of the
+/// pixels get a depth between the near and the far surface.
+fn add_flying_pixels(
+    depth: &mut [u16],
+    clean: &[f32],
+    w: usize,
+    h: usize,
+    noise: &Noise,
+    depth_scale: f64,
+    keys: [u64; 3],
+) {
+    let mut rng = Rand::keyed(&[keys[0], keys[1], keys[2], 0xf1f1]);
+    for v in 0..h {
+        for u in 0..w {
+            if clean[v * w + u] <= 0.0 {
+                continue;
+            }
+            let Some((lo, hi)) = depth_edge(clean, w, h, u, v) else {
+                continue;
+            };
+            let (pick, f) = (rng.uniform(), rng.uniform());
+            if pick > 0.6 {
+                continue;
+            }
+            let z = lo + (hi - lo) * f;
+            let q = (z / depth_scale).round();
+            if z >= noise.min_z_m && z <= noise.max_z_m && (1.0..=65535.0).contains(&q) {
+                depth[v * w + u] = q as u16;
+            }
+        }
+    }
+}
+
+/// Dropout in blobs: ellipses of a few to tens of pixels (about one per 2500 pixels).
+fn add_holes(depth: &mut [u16], w: usize, h: usize, keys: [u64; 3]) {
+    let mut rng = Rand::keyed(&[keys[0], keys[1], keys[2], 0x401e]);
+    let n = ((w * h) as f64 / 2500.0 * rng.range(0.5, 1.5)) as usize;
+    for _ in 0..n {
+        let (cu, cv) = (rng.range(0.0, w as f64), rng.range(0.0, h as f64));
+        let (ru, rv) = (rng.range(1.0, 4.5), rng.range(1.0, 4.5));
+        let (u0, u1) = (
+            (cu - ru).floor().max(0.0) as usize,
+            ((cu + ru).ceil() as usize).min(w),
+        );
+        let (v0, v1) = (
+            (cv - rv).floor().max(0.0) as usize,
+            ((cv + rv).ceil() as usize).min(h),
+        );
+        for v in v0..v1 {
+            for u in u0..u1 {
+                let (du, dv) = ((u as f64 - cu) / ru, (v as f64 - cv) / rv);
+                if du * du + dv * dv <= 1.0 {
+                    depth[v * w + u] = 0;
+                }
+            }
+        }
     }
 }
 
@@ -887,6 +1175,42 @@ pub struct ForeignConfig {
     pub previews: bool,
     /// Wrong inputs on purpose.
     pub sabotage: Sabotage,
+    /// Where robot 2 stands (default: facing robot 1 across the table).
+    pub layout: Layout,
+    /// What is under and around the table (default: a table on legs and a floor; with `floor: false` a
+    /// `TableOnLegs` ground means `Nothing`, as the field meant before this one existed).
+    pub ground: Ground,
+    /// The table top's outline (default: a rectangle).
+    pub table_shape: TableShape,
+    /// The table is as wide as it is long (default: 0.8-1.1 m wide).
+    pub square_table: bool,
+    /// The objects on the table (default: boxes, spheres and cylinders).
+    pub objects: Objects,
+    /// The idle robot stands in candle pose (straight up) at its base while the other robot captures:
+    /// each robot's depth shows the other robot's arm, which is no part of the static scene.
+    pub other_robot_in_view: bool,
+    /// A 0.36 m x 0.36 m box under each robot's base from the floor up to the base (static scene).
+    pub pedestal: bool,
+    /// Where the cameras look (default: near the table centre).
+    pub aim: Aim,
+    /// RealSense-like flying pixels on 1-2 pixel bands along depth discontinuities.
+    pub flying_pixels: bool,
+    /// Dropout in blobs of a few to tens of pixels (besides the single-pixel dropout).
+    pub holes: bool,
+    /// The poses written to `poses.csv` are off by this many mm (1-σ per axis) and this x 0.05 degrees
+    /// (1-σ per axis); the depth is rendered with the true poses. 0 = exact poses.
+    pub pose_noise_mm: f64,
+}
+
+impl ForeignConfig {
+    /// The ground in effect (`floor: false` turns the default `TableOnLegs` into `Nothing`).
+    pub fn effective_ground(&self) -> Ground {
+        if !self.floor && self.ground == Ground::TableOnLegs {
+            Ground::Nothing
+        } else {
+            self.ground
+        }
+    }
 }
 
 impl Default for ForeignConfig {
@@ -909,6 +1233,17 @@ impl Default for ForeignConfig {
             names: ["arm_a".into(), "arm_b".into()],
             previews: false,
             sabotage: Sabotage::default(),
+            layout: Layout::Facing,
+            ground: Ground::TableOnLegs,
+            table_shape: TableShape::Rectangle,
+            square_table: false,
+            objects: Objects::Asymmetric,
+            other_robot_in_view: false,
+            pedestal: false,
+            aim: Aim::Shared,
+            flying_pixels: false,
+            holes: false,
+            pose_noise_mm: 0.0,
         }
     }
 }
@@ -953,12 +1288,36 @@ fn look_at(eye: Vector3<f64>, target: Vector3<f64>, roll: f64) -> Isometry3<f64>
 
 /// Camera poses in world (base1) for the robot whose base sits at `base_xy`: a hemisphere above the table
 /// on that robot's side, every view looking at a point near the table centre.
+/// The shape of a robot's camera arc: the target's shift off the table centre (world), the azimuth half
+/// range and the elevation range (degrees).
+#[derive(Clone, Copy, Debug)]
+struct Arc {
+    shift: Vector3<f64>,
+    az_half_deg: f64,
+    el_min_deg: f64,
+    el_span_deg: f64,
+    dist_m: (f64, f64),
+}
+
+impl Arc {
+    /// The original arc: at the table centre, ±65° azimuth, 48-72° elevation.
+    const SHARED: Arc = Arc {
+        shift: Vector3::new(0.0, 0.0, 0.0),
+        az_half_deg: 65.0,
+        el_min_deg: 48.0,
+        el_span_deg: 24.0,
+        dist_m: (0.55, 0.8),
+    };
+}
+
 fn camera_arc(
     rng: &mut Rand,
     views: usize,
     scene: &Scene,
     base_xy: Vector3<f64>,
+    arc: Arc,
 ) -> Vec<Isometry3<f64>> {
+    let shift = arc.shift;
     let c = scene.table_centre;
     let toward_base = (base_xy - c).xy();
     let az0 = toward_base.y.atan2(toward_base.x);
@@ -969,15 +1328,19 @@ fn camera_arc(
             } else {
                 0.5
             };
-            let az = az0 + (-65.0 + 130.0 * f + rng.range(-6.0, 6.0)).to_radians();
-            let el =
-                (48.0 + 24.0 * ((i as f64 * 0.618_034) % 1.0) + rng.range(-3.0, 3.0)).to_radians();
-            let dist = rng.range(0.55, 0.8);
+            let az = az0
+                + (-arc.az_half_deg + 2.0 * arc.az_half_deg * f + rng.range(-6.0, 6.0))
+                    .to_radians();
+            let el = (arc.el_min_deg
+                + arc.el_span_deg * ((i as f64 * 0.618_034) % 1.0)
+                + rng.range(-3.0, 3.0))
+            .to_radians();
+            let dist = rng.range(arc.dist_m.0, arc.dist_m.1);
             let target = Vector3::new(
                 c.x + rng.range(-0.12, 0.12),
                 c.y + rng.range(-0.12, 0.12),
                 scene.table_top + rng.range(0.0, 0.08),
-            );
+            ) + shift;
             let mut eye =
                 target + dist * Vector3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
             if let Some(wall) = scene.back_wall_y {
@@ -989,6 +1352,50 @@ fn camera_arc(
             look_at(eye, target, rng.range(-15.0, 15.0).to_radians())
         })
         .collect()
+}
+
+/// The primitives of an iiwa-like arm in candle pose (straight up) standing at `base` (world): a base
+/// drum, links of 0.07-0.1 m radius with ball joints, a flange at 1.2-1.3 m.
+fn candle_arm(base: Vector3<f64>, rng: &mut Rand) -> Vec<Prim> {
+    let s = rng.range(1.2, 1.3) / 1.26;
+    let r = rng.range(0.07, 0.1);
+    let at = |z: f64| base + Vector3::new(0.0, 0.0, z * s);
+    vec![
+        Prim::Cylinder {
+            c: at(0.0),
+            r: r + 0.02,
+            h: 0.16 * s,
+        },
+        Prim::Cylinder {
+            c: at(0.16),
+            r,
+            h: 0.2 * s,
+        },
+        Prim::Sphere {
+            c: at(0.36),
+            r: r + 0.01,
+        },
+        Prim::Cylinder {
+            c: at(0.36),
+            r: r * 0.95,
+            h: 0.42 * s,
+        },
+        Prim::Sphere { c: at(0.78), r },
+        Prim::Cylinder {
+            c: at(0.78),
+            r: r * 0.85,
+            h: 0.4 * s,
+        },
+        Prim::Sphere {
+            c: at(1.18),
+            r: r * 0.8,
+        },
+        Prim::Cylinder {
+            c: at(1.18),
+            r: 0.045,
+            h: 0.08 * s,
+        },
+    ]
 }
 
 fn perturbed(t: &Isometry3<f64>, rng: &mut Rand, mm: f64, deg: f64) -> Isometry3<f64> {
@@ -1009,47 +1416,116 @@ fn fmt_f(v: f64) -> String {
 pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
     let start = std::time::Instant::now();
     let mut rng = Rand::keyed(&[cfg.seed, 0xce11]);
+    // The new options draw from their own generator so the original cells stay as they were.
+    let mut lrng = Rand::keyed(&[cfg.seed, 0x1a7e]);
     // Robot 2's base in base1.
     let sep = cfg.base_separation_m.unwrap_or_else(|| rng.range(1.0, 1.6));
     let lateral = rng.range(-0.1, 0.1);
     let dz = cfg
         .height_difference_m
         .unwrap_or_else(|| rng.range(-0.05, 0.05));
-    let yaw = std::f64::consts::PI
-        + rng
-            .range(-cfg.yaw_jitter_deg, cfg.yaw_jitter_deg)
-            .to_radians();
+    let jitter = rng
+        .range(-cfg.yaw_jitter_deg, cfg.yaw_jitter_deg)
+        .to_radians();
     let tilt_axis_angle = rng.range(0.0, std::f64::consts::TAU);
     let tilt = rot(
         Vector3::new(tilt_axis_angle.cos(), tilt_axis_angle.sin(), 0.0),
         cfg.tilt_deg.to_radians(),
     );
-    let base2 = Vector3::new(sep, lateral, dz);
+    // The table: `length` along world x, `width` along world y.
+    let top = rng.range(-0.08, 0.03);
+    let width = rng.range(0.8, 1.1);
+    let (base2, yaw, centre, length, width) = match cfg.layout {
+        Layout::Facing => (
+            Vector3::new(sep, lateral, dz),
+            std::f64::consts::PI + jitter,
+            Vector3::new(sep / 2.0, lateral / 2.0, top),
+            (sep - 0.25).max(0.8),
+            width,
+        ),
+        Layout::RightAngle => {
+            // Robot 1 at the table's -x end as when facing, robot 2 beside its -y side looking along +y.
+            let length = (sep - 0.25).max(0.8);
+            let centre = Vector3::new(sep / 2.0, lateral / 2.0, top);
+            let base2 = Vector3::new(
+                centre.x + lrng.range(-0.1, 0.1),
+                centre.y - width / 2.0 - lrng.range(0.12, 0.25),
+                dz,
+            );
+            (
+                base2,
+                std::f64::consts::FRAC_PI_2 + jitter,
+                centre,
+                length,
+                width,
+            )
+        }
+        Layout::SideBySide => {
+            // Both at the table's -x side, robot 2 0.8-1.2 m along +y, the same yaw.
+            let spacing = lrng.range(0.8, 1.2);
+            let depth = lrng.range(0.8, 1.0);
+            let base2 = Vector3::new(lateral, spacing, dz);
+            let centre = Vector3::new(depth / 2.0 + lrng.range(0.1, 0.15), spacing / 2.0, top);
+            (base2, jitter, centre, depth, spacing + lrng.range(0.3, 0.5))
+        }
+    };
+    let width = if cfg.square_table { length } else { width };
     let truth = Isometry3::from_parts(
         Translation3::from(base2),
         UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw) * tilt,
     );
-    // Table between the bases.
-    let top = rng.range(-0.08, 0.03);
-    let centre = Vector3::new(sep / 2.0, lateral / 2.0, top);
-    let length = (sep - 0.25).max(0.8);
-    let width = rng.range(0.8, 1.1);
-    let scene = build_scene(
+    let mut scene = build_scene(
         cfg.scene,
         &mut rng,
         centre,
         length,
         width,
-        cfg.back_wall,
-        cfg.floor,
+        SceneOptions {
+            back_wall: cfg.back_wall,
+            ground: cfg.effective_ground(),
+            table_shape: cfg.table_shape,
+            objects: cfg.objects,
+            seed: cfg.seed,
+        },
     );
-    // Cameras and hand-eyes.
     let bases = [Vector3::zeros(), base2];
+    if cfg.pedestal {
+        // A box under each base, its table-side face 0.08 m in front of the base.
+        for (k, b) in bases.iter().enumerate() {
+            let height = b.z - scene.floor_z;
+            if height < 0.02 {
+                continue;
+            }
+            let to_table = (scene.table_centre - b).xy().normalize();
+            let c = b.xy() - to_table * 0.1;
+            let facing = if k == 0 { 0.0 } else { yaw };
+            scene.big.push(Prim::resting_box(
+                c.x,
+                c.y,
+                scene.floor_z,
+                Vector3::new(0.18, 0.18, height / 2.0),
+                facing,
+            ));
+        }
+    }
+    // Per robot: the static scene, plus the other robot's arm in candle pose when it is in view.
+    let scenes: Vec<Scene> = (0..2)
+        .map(|k| {
+            let mut s = scene.clone();
+            if cfg.other_robot_in_view {
+                let mut arng = Rand::keyed(&[cfg.seed, 0xa4a, 1 - k as u64]);
+                s.big.extend(candle_arm(bases[1 - k], &mut arng));
+            }
+            s
+        })
+        .collect();
+    // Cameras and hand-eyes.
     let to_base = [Isometry3::identity(), truth.inverse()]; // T_base_k_base1
     let mut intr = Vec::new();
     let mut hand_eye = Vec::new();
     let mut cams = Vec::new();
-    for base in bases {
+    let mut arcs = Vec::new();
+    for (k, base) in bases.into_iter().enumerate() {
         let w = cfg.width as f64;
         let fx = w * 0.6 * (1.0 + rng.range(-0.01, 0.01));
         intr.push(Pinhole {
@@ -1073,7 +1549,95 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
             ),
             q,
         ));
-        cams.push(camera_arc(&mut rng, cfg.views, &scene, base));
+        // Aim off the table centre toward the own base (an own generator per robot for the distance).
+        let mut arng = Rand::keyed(&[cfg.seed, 0xa1e, k as u64]);
+        let toward = (base - scene.table_centre).xy().normalize();
+        let toward = Vector3::new(toward.x, toward.y, 0.0);
+        let arc = match cfg.aim {
+            Aim::Shared => Arc::SHARED,
+            Aim::OwnSide => Arc {
+                shift: toward * arng.range(0.25, 0.35),
+                az_half_deg: 35.0,
+                el_min_deg: 60.0,
+                el_span_deg: 20.0,
+                dist_m: (0.5, 0.7),
+            },
+            // The distance is scaled below to reach the intended overlap.
+            Aim::LowOverlap => Arc {
+                shift: toward * arng.range(0.9, 1.1),
+                az_half_deg: 25.0,
+                el_min_deg: 68.0,
+                el_span_deg: 15.0,
+                dist_m: (0.4, 0.55),
+            },
+        };
+        arcs.push((rng.clone(), base, arc));
+        cams.push(camera_arc(&mut rng, cfg.views, &scene, base, arc));
+    }
+    if cfg.aim == Aim::LowOverlap {
+        // Bisect the aim's distance from the table centre on coarse renders (1/8 of the size, no artefacts)
+        // until the robots share a drawn 17-28 %: the overlap depends on the table and the objects too.
+        let mut orng = Rand::keyed(&[cfg.seed, 0x10e7]);
+        let target = orng.range(0.17, 0.28);
+        let cams_at = |scale: f64| -> Vec<Vec<Isometry3<f64>>> {
+            arcs.iter()
+                .map(|(r, base, arc)| {
+                    let arc = Arc {
+                        shift: arc.shift * scale,
+                        ..*arc
+                    };
+                    camera_arc(&mut r.clone(), cfg.views, &scene, *base, arc)
+                })
+                .collect()
+        };
+        let coarse: Vec<Pinhole> = intr
+            .iter()
+            .map(|k| Pinhole {
+                width: (k.width / 8).max(8),
+                height: (k.height / 8).max(6),
+                fx: k.fx / 8.0,
+                fy: k.fy / 8.0,
+                ppx: (k.ppx + 0.5) / 8.0 - 0.5,
+                ppy: (k.ppy + 0.5) / 8.0 - 0.5,
+            })
+            .collect();
+        let clean_noise = Noise {
+            dropout: 0.0,
+            ..cfg.noise
+        };
+        let overlap_at = |scale: f64| -> f64 {
+            let cs = cams_at(scale);
+            let views: Vec<Vec<View>> = (0..2)
+                .map(|k| {
+                    cs[k]
+                        .iter()
+                        .map(|t| {
+                            render(
+                                &scenes[k],
+                                &coarse[k],
+                                t,
+                                &clean_noise,
+                                cfg.depth_scale,
+                                [cfg.seed, k as u64, 0],
+                                Artefacts::default(),
+                            )
+                        })
+                        .collect()
+                })
+                .collect();
+            let (shared, _) = shared_and_valid(&views, &coarse, 1);
+            (shared[0] + shared[1]) / 2.0
+        };
+        let (mut lo, mut hi) = (0.2, 1.2);
+        for _ in 0..7 {
+            let mid = (lo + hi) / 2.0;
+            if overlap_at(mid) > target {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        cams = cams_at((lo + hi) / 2.0);
     }
     // Render.
     let t_render = std::time::Instant::now();
@@ -1084,12 +1648,16 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
                 .enumerate()
                 .map(|(i, t)| {
                     render(
-                        &scene,
+                        &scenes[k],
                         &intr[k],
                         t,
                         &cfg.noise,
                         cfg.depth_scale,
                         [cfg.seed, k as u64, i as u64],
+                        Artefacts {
+                            flying_pixels: cfg.flying_pixels,
+                            holes: cfg.holes,
+                        },
                     )
                 })
                 .collect()
@@ -1097,37 +1665,7 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
         .collect();
     let render_s = t_render.elapsed().as_secs_f64();
     // Shared fraction and valid fraction.
-    let mut shared_fraction = [0.0; 2];
-    let mut valid_fraction = [0.0; 2];
-    for k in 0..2 {
-        let other = 1 - k;
-        let (mut seen, mut shared, mut valid, mut total) = (0usize, 0usize, 0usize, 0usize);
-        let kk = &intr[k];
-        for view in &views[k] {
-            total += view.depth.len();
-            valid += view.depth.iter().filter(|&&d| d > 0).count();
-            for v in (0..kk.height as usize).step_by(6) {
-                for u in (0..kk.width as usize).step_by(6) {
-                    let z = view.clean[v * kk.width as usize + u] as f64;
-                    if z <= 0.0 || view.depth[v * kk.width as usize + u] == 0 {
-                        continue;
-                    }
-                    seen += 1;
-                    let p_cam = Vector3::new(
-                        (u as f64 - kk.ppx) / kk.fx * z,
-                        (v as f64 - kk.ppy) / kk.fy * z,
-                        z,
-                    );
-                    let p_w = view.t_base1_cam * Point3::from(p_cam);
-                    if views[other].iter().any(|ov| sees(&intr[other], ov, &p_w)) {
-                        shared += 1;
-                    }
-                }
-            }
-        }
-        shared_fraction[k] = shared as f64 / seen.max(1) as f64;
-        valid_fraction[k] = valid as f64 / total.max(1) as f64;
-    }
+    let (shared_fraction, valid_fraction) = shared_and_valid(&views, &intr, 6);
     // Files.
     let _ = std::fs::remove_dir_all(dir);
     std::fs::create_dir_all(dir).unwrap();
@@ -1173,6 +1711,19 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
             .map(|v| to_base[k] * v.t_base1_cam * he_inv)
             .collect();
         let mut written = poses.clone();
+        if cfg.pose_noise_mm > 0.0 {
+            let mut prng = Rand::keyed(&[cfg.seed, 0x905e, k as u64]);
+            let (mm, deg) = (cfg.pose_noise_mm, cfg.pose_noise_mm * 0.05);
+            for p in &mut written {
+                let dt = Vector3::new(prng.normal(), prng.normal(), prng.normal()) * mm * 1e-3;
+                let dr =
+                    Vector3::new(prng.normal(), prng.normal(), prng.normal()) * deg.to_radians();
+                *p = Isometry3::from_parts(
+                    Translation3::from(p.translation.vector + dt),
+                    UnitQuaternion::from_scaled_axis(dr) * p.rotation,
+                );
+            }
+        }
         if let Some((r, frame, mm, deg)) = cfg.sabotage.pose_row {
             if r == k {
                 written[frame] = perturbed(&written[frame], &mut srng, mm, deg);
@@ -1264,6 +1815,22 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
         "true_hand_eye": {cfg.names[0].clone(): rows4(&hand_eye[0]), cfg.names[1].clone(): rows4(&hand_eye[1])},
         "true_fy": [intr[0].fy, intr[1].fy],
         "sabotage": format!("{:?}", cfg.sabotage),
+        "layout": cfg.layout.name(),
+        "ground": cfg.effective_ground().name(),
+        "floor": cfg.floor,
+        "table_shape": cfg.table_shape.name(),
+        "square_table": cfg.square_table,
+        "objects": cfg.objects.name(),
+        "other_robot_in_view": cfg.other_robot_in_view,
+        "pedestal": cfg.pedestal,
+        "aim": cfg.aim.name(),
+        "flying_pixels": cfg.flying_pixels,
+        "holes": cfg.holes,
+        "pose_noise_mm": cfg.pose_noise_mm,
+        "pose_noise_deg": cfg.pose_noise_mm * 0.05,
+        "depth_scale": cfg.depth_scale,
+        "table_top_m": scene.table_top,
+        "table_centre_m": [scene.table_centre.x, scene.table_centre.y, scene.table_centre.z],
     });
     std::fs::write(
         dir.join("ground_truth.json"),
@@ -1283,6 +1850,43 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
         total_s: start.elapsed().as_secs_f64(),
         config: cfg.clone(),
     }
+}
+
+/// Per robot: the fraction of its valid pixels (every `step`-th row and column) that some view of the
+/// other robot also saw, and the fraction of all its pixels with data.
+fn shared_and_valid(views: &[Vec<View>], intr: &[Pinhole], step: usize) -> ([f64; 2], [f64; 2]) {
+    let mut shared_fraction = [0.0; 2];
+    let mut valid_fraction = [0.0; 2];
+    for k in 0..2 {
+        let other = 1 - k;
+        let (mut seen, mut shared, mut valid, mut total) = (0usize, 0usize, 0usize, 0usize);
+        let kk = &intr[k];
+        for view in &views[k] {
+            total += view.depth.len();
+            valid += view.depth.iter().filter(|&&d| d > 0).count();
+            for v in (0..kk.height as usize).step_by(step) {
+                for u in (0..kk.width as usize).step_by(step) {
+                    let z = view.clean[v * kk.width as usize + u] as f64;
+                    if z <= 0.0 || view.depth[v * kk.width as usize + u] == 0 {
+                        continue;
+                    }
+                    seen += 1;
+                    let p_cam = Vector3::new(
+                        (u as f64 - kk.ppx) / kk.fx * z,
+                        (v as f64 - kk.ppy) / kk.fy * z,
+                        z,
+                    );
+                    let p_w = view.t_base1_cam * Point3::from(p_cam);
+                    if views[other].iter().any(|ov| sees(&intr[other], ov, &p_w)) {
+                        shared += 1;
+                    }
+                }
+            }
+        }
+        shared_fraction[k] = shared as f64 / seen.max(1) as f64;
+        valid_fraction[k] = valid as f64 / total.max(1) as f64;
+    }
+    (shared_fraction, valid_fraction)
 }
 
 /// Whether the (other robot's) view `ov` saw the world point `p` (in its image, not occluded).

@@ -144,6 +144,7 @@ pub fn write_kuka_pose_file(
 }
 pub mod bag;
 pub mod foreign;
+pub mod outcome;
 
 /// Checks that every top-level field of a report `v` is listed in docs/json.md's section of its schema
 /// (the `schema` field), and that the section lists no field the report lacks.
