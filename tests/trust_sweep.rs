@@ -10,7 +10,8 @@
 //! * `DEPTHCAL_TRUST_SWEEP=N cargo test --release --test trust_sweep sweep -- --nocapture`: N seeds per
 //!   family (`DEPTHCAL_TRUST_SWEEP_FIRST=S`, default 1000: seeds no one tuned on;
 //!   `DEPTHCAL_TRUST_SWEEP_FAMILIES=a,b` a subset by name; `DEPTHCAL_TRUST_SWEEP_ARGS="..."` extra
-//!   calibrate arguments). One line per cell as it goes, then a Markdown table per family.
+//!   calibrate arguments; `DEPTHCAL_BIN=PATH` a pinned copy of the binary, see `tests/common/mod.rs`).
+//!   One line per cell as it goes, then after each seed a Markdown table per family.
 //! * The other tests check the generator's new options on small cells.
 //!
 //! Right = rotation error < 0.1° and translation error < 2 mm. Trusted = exit 0 and `trusted: true`;

@@ -81,9 +81,14 @@ pub fn seven_scenes_frame_ids(frames_dir: &std::path::Path) -> Vec<String> {
     ids
 }
 
-/// Runs the `depthcal` binary with `args`; returns the exit code, stdout and stderr.
+/// Runs the `depthcal` binary with `args`; returns the exit code, stdout and stderr. `DEPTHCAL_BIN=PATH`
+/// runs that binary instead of the one cargo built (e.g. a copy pinned for a long sweep while the shared
+/// target directory is rebuilt).
 pub fn depthcal(args: &[&str]) -> (i32, String, String) {
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_depthcal"))
+    let bin = std::env::var_os("DEPTHCAL_BIN")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_BIN_EXE_depthcal")));
+    let out = std::process::Command::new(bin)
         .args(args)
         .output()
         .expect("run depthcal");
