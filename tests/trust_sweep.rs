@@ -10,7 +10,8 @@
 //! * `DEPTHCAL_TRUST_SWEEP=N cargo test --release --test trust_sweep sweep -- --nocapture`: N seeds per
 //!   family (`DEPTHCAL_TRUST_SWEEP_FIRST=S`, default 1000: seeds no one tuned on;
 //!   `DEPTHCAL_TRUST_SWEEP_FAMILIES=a,b` a subset by name; `DEPTHCAL_TRUST_SWEEP_ARGS="..."` extra
-//!   calibrate arguments; `DEPTHCAL_BIN=PATH` a pinned copy of the binary, see `tests/common/mod.rs`).
+//!   calibrate arguments; `DEPTHCAL_BIN=PATH` a pinned copy of the binary, see `tests/common/mod.rs`;
+//!   `DEPTHCAL_TRUST_SWEEP_KEEP=DIR` keeps each cell there instead of deleting it).
 //!   One line per cell as it goes, then after each seed a Markdown table per family.
 //! * The other tests check the generator's new options on small cells.
 //!
@@ -433,7 +434,49 @@ fn truncate(s: &str, n: usize) -> String {
     }
 }
 
-/// Generates, calibrates, fuses and registers one cell, prints its line and deletes it.
+/// The hypotheses calibrate judged at full resolution (its JSON's `hypotheses`), when there were several:
+/// per hypothesis its error against the truth, surface agreement and free-space violation, `*` on the
+/// chosen one; empty otherwise.
+fn judged_hypotheses(cal: &Outcome, truth: &Isometry3<f64>) -> String {
+    let Some(list) = cal
+        .json
+        .as_ref()
+        .and_then(|j| j.get("hypotheses"))
+        .and_then(|h| h.as_array())
+        .filter(|h| h.len() > 1)
+    else {
+        return String::new();
+    };
+    let items: Vec<String> = list
+        .iter()
+        .map(|h| {
+            let err = h.get("transform").and_then(matrix4).map(|t| {
+                let d = t * truth.inverse();
+                (
+                    d.rotation.angle().to_degrees(),
+                    d.translation.vector.norm() * 1e3,
+                )
+            });
+            let num = |k: &str| h.get(k).and_then(|v| v.as_f64());
+            format!(
+                "{}{}°/{}mm agr {} fs {}%",
+                if h.get("chosen").and_then(|c| c.as_bool()) == Some(true) {
+                    "*"
+                } else {
+                    ""
+                },
+                f(err.map(|e| e.0), 2),
+                f(err.map(|e| e.1), 1),
+                f(num("agreement"), 3),
+                f(num("free_space_violation").map(|v| v * 1e2), 1)
+            )
+        })
+        .collect();
+    format!(" | hypotheses: {}", items.join("; "))
+}
+
+/// Generates, calibrates, fuses and registers one cell, prints its line and deletes it (or moves it into
+/// `DEPTHCAL_TRUST_SWEEP_KEEP`, a directory, when that is set).
 fn run_cell(
     family: &Family,
     seed: u64,
@@ -470,9 +513,10 @@ fn run_cell(
             .first()
             .map_or(String::new(), |r| truncate(r, 100))
     };
+    let hypotheses = judged_hypotheses(&cal, &truth);
     println!(
         "{:<18} {:>5} {:<13} err {:>8}° {:>7} mm  σ {:>7}° {:>6} mm  z {:>6}  exit {} trusted {:<5} {:>5.1}s | \
-         register {:>8}° {:>7} mm exit {} | cell {:.0}s, {desc} | {reason}",
+         register {:>8}° {:>7} mm exit {} | cell {:.0}s, {desc} | {reason}{hypotheses}",
         family.name,
         seed,
         format!("{class:?}"),
@@ -489,7 +533,20 @@ fn run_cell(
         reg.as_ref().map_or("-".into(), |r| r.code.to_string()),
         t0.elapsed().as_secs_f64(),
     );
-    let _ = std::fs::remove_dir_all(&dir);
+    match std::env::var_os("DEPTHCAL_TRUST_SWEEP_KEEP") {
+        Some(keep) => {
+            let to = PathBuf::from(keep).join(format!("{}-{seed}", family.name));
+            let _ = std::fs::remove_dir_all(&to);
+            std::fs::create_dir_all(to.parent().unwrap()).unwrap();
+            if std::fs::rename(&dir, &to).is_err() {
+                println!("    could not keep the cell at {}", to.display());
+                let _ = std::fs::remove_dir_all(&dir);
+            }
+        }
+        None => {
+            let _ = std::fs::remove_dir_all(&dir);
+        }
+    }
     Row {
         family: family.name,
         seed,

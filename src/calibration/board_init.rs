@@ -147,6 +147,7 @@ impl Initializer for CheckerboardInitializer {
                 side(&self.other)
             ),
             ambiguity: None,
+            alternatives: Vec::new(),
         })
     }
 }

@@ -660,6 +660,7 @@ pub fn robot_consistency(
                         size: [0, 0],
                         near: Vec::new(),
                         far: Vec::new(),
+                        valid: Vec::new(),
                     }
                 }
             })

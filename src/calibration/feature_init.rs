@@ -379,6 +379,7 @@ impl Initializer for FeatureInitializer {
                 self.summary
             ),
             ambiguity: None,
+            alternatives: Vec::new(),
         })
     }
 }

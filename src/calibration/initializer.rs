@@ -11,6 +11,7 @@ use crate::fusion::FusedCloud;
 use crate::registration::pipeline::Ambiguity;
 use crate::registration::{register_with_prior, HypothesisPrior, PoseConstraint, RegisterConfig};
 use nalgebra::{Isometry3, Matrix6, Vector6};
+use serde::{Deserialize, Serialize};
 
 /// What an initialiser gets to work with: both robots' fused clouds in their own base frames.
 pub struct InitializerInput<'a> {
@@ -37,6 +38,9 @@ pub struct InitialGuess {
     pub detail: String,
     /// A far-away second answer that the data supports almost as well (initialisers that search).
     pub ambiguity: Option<Ambiguity>,
+    /// Other distinct hypotheses of a search, for the refinement to refine and judge at full resolution
+    /// beside `transform` (empty for initialisers that give one answer).
+    pub alternatives: Vec<Isometry3<f64>>,
 }
 
 impl InitialGuess {
@@ -61,6 +65,42 @@ pub trait Initializer {
     }
 }
 
+/// How the depth initialiser searches for hypotheses ([`GlobalRegistration`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SearchConfig {
+    /// Besides the cell search (sided normals, one-way matches, the priors' constraint, hypotheses weighed
+    /// by the free-space test), also run `register`'s own global stage on the same clouds (its defaults:
+    /// normals signed locally, mutual matches, no constraint, no free-space weights) and pool its
+    /// hypotheses, less those the priors refuse (default true). The two searches fail on different cells:
+    /// a hand-made foreign cell with nothing in range behind a square table was found only by the second
+    /// ("Right on any cell", docs/accuracy.md), while the free-space weights decide cells that share a
+    /// third of the scene.
+    pub plain: bool,
+    /// Distinct hypotheses each search hands to the refinement, best first (default 3).
+    pub hypotheses_per_search: usize,
+}
+
+impl Default for SearchConfig {
+    fn default() -> Self {
+        SearchConfig {
+            plain: true,
+            hypotheses_per_search: 3,
+        }
+    }
+}
+
+impl SearchConfig {
+    /// Checks the ranges; the error names the field (`search.…`).
+    pub fn validate(&self) -> Result<()> {
+        crate::error::check::at_least(
+            "search.hypotheses_per_search",
+            self.hypotheses_per_search,
+            1,
+        )
+    }
+}
+
 /// Depth only: FPFH features, RANSAC under the priors, verified on the clouds (the default).
 #[derive(Clone, Debug)]
 pub struct GlobalRegistration {
@@ -71,13 +111,17 @@ pub struct GlobalRegistration {
     /// ([`crate::calibration::visibility`]) when the fused clouds carry their frames' depth views
     /// (default on).
     pub visibility: Option<VisibilityConfig>,
+    /// Which searches run and how many hypotheses each hands on.
+    pub search: SearchConfig,
 }
 
 impl Default for GlobalRegistration {
     fn default() -> Self {
+        let c = crate::calibration::robot_to_robot::CalibrateConfig::default();
         GlobalRegistration {
-            config: crate::calibration::robot_to_robot::CalibrateConfig::default().register,
-            visibility: Some(VisibilityConfig::default()),
+            config: c.register,
+            visibility: Some(c.visibility),
+            search: c.search,
         }
     }
 }
@@ -125,6 +169,45 @@ impl Initializer for GlobalRegistration {
         )?;
         let g = r.global.as_ref().expect("global stage ran");
         log::info!("depth initialiser stages (ms): {:?}", r.timings_ms);
+        let per_search = self.search.hypotheses_per_search.max(1);
+        let mut pool: Vec<Isometry3<f64>> = vec![r.transform];
+        let distinct = |pool: &[Isometry3<f64>], h: &Isometry3<f64>| {
+            pool.iter().all(|k| {
+                let (deg, m) = crate::geometry::transform::pose_error(h, k);
+                deg > cfg.ambiguity_min_deg || m > cfg.ambiguity_min_voxels * r.voxel
+            })
+        };
+        for h in r.hypotheses.iter().take(per_search) {
+            if distinct(&pool, h) {
+                pool.push(*h);
+            }
+        }
+        if self.search.plain {
+            let plain = RegisterConfig {
+                seed: input.seed,
+                icp_levels: 1,
+                ..RegisterConfig::default()
+            };
+            let p = register_with_prior(
+                &other.cloud,
+                &reference.cloud,
+                None,
+                &plain,
+                &mut |_| {},
+                None,
+            )?;
+            log::info!("plain search stages (ms): {:?}", p.timings_ms);
+            let accepted = p
+                .hypotheses
+                .iter()
+                .filter(|h| input.constraint.accepts(h))
+                .take(per_search);
+            for h in accepted {
+                if distinct(&pool, h) {
+                    pool.push(*h);
+                }
+            }
+        }
         Ok(InitialGuess {
             transform: r.transform,
             // A coarse registration is good to about a voxel, over the half-extent of the cloud.
@@ -137,6 +220,7 @@ impl Initializer for GlobalRegistration {
                 g.correspondences, g.inliers, g.iterations, g.fitness, r.voxel
             ),
             ambiguity: r.ambiguity.clone(),
+            alternatives: pool.split_off(1),
         })
     }
 }
@@ -164,6 +248,7 @@ impl Initializer for UserGuess {
             sigma_translation_m: 0.05,
             detail: format!("user guess from {}", self.source),
             ambiguity: None,
+            alternatives: Vec::new(),
         })
     }
 }

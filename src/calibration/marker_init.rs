@@ -464,6 +464,7 @@ impl Initializer for MarkerInitializer {
                 side(&self.other)
             ),
             ambiguity: None,
+            alternatives: Vec::new(),
         })
     }
 }

@@ -8,6 +8,7 @@ pub mod board_init;
 pub mod consistency;
 pub mod feature_init;
 pub mod handeye;
+pub mod hypotheses;
 pub mod initializer;
 pub mod marker_init;
 pub mod plan;

@@ -3,14 +3,13 @@
 
 use crate::calibration::consistency::{robot_consistency, ConsistencyConfig, RobotConsistency};
 use crate::calibration::handeye::depth::check::{check_hand_eye, HandEyeCheck, HandEyeCheckConfig};
-use crate::calibration::initializer::{sight, InitialGuess, Initializer, InitializerInput};
+use crate::calibration::hypotheses::{choose, refine_and_judge, FreeSpaceTest};
+use crate::calibration::initializer::{InitialGuess, Initializer, InitializerInput, SearchConfig};
 use crate::calibration::priors::CellPriors;
 use crate::calibration::uncertainty::{
     cloud_motion_covariance, inputs_covariance, normalised_error, NormalisedError,
 };
-use crate::calibration::visibility::{
-    free_space_violation, self_consistent_margin, VisibilityConfig,
-};
+use crate::calibration::visibility::VisibilityConfig;
 use crate::cell::{Cell, CellRobot};
 use crate::error::{Error, Result};
 use crate::fusion::{fuse_robot, FuseConfig, FusedCloud};
@@ -18,9 +17,7 @@ use crate::geometry::transform::pose_error;
 use crate::registration::correspondence::MatchConfig;
 use crate::registration::quality::Degeneracy;
 use crate::registration::Trust;
-use crate::registration::{
-    register, IcpConfig, IcpFactor, RansacConfig, RegisterConfig, RobustKernel,
-};
+use crate::registration::{IcpConfig, IcpFactor, RansacConfig, RegisterConfig, RobustKernel};
 use crate::timing::StageTimer;
 use nalgebra::{Isometry3, Matrix6};
 use serde::{Deserialize, Serialize};
@@ -62,6 +59,12 @@ pub struct CalibrateConfig {
     /// The check of each robot's stated hand-eye (and its 1-σ) against its own depth frames
     /// ([`crate::calibration::handeye::depth::check`]); an inconsistent one makes the result untrusted.
     pub hand_eye_check: HandEyeCheckConfig,
+    /// The free-space test of hypotheses and of the result ([`crate::calibration::visibility`]); its
+    /// `robot_body_radius_m` also leaves the other robot's body out of the refinement under each
+    /// hypothesis ([`crate::calibration::hypotheses`]).
+    pub visibility: VisibilityConfig,
+    /// The depth initialiser's searches ([`SearchConfig`]).
+    pub search: SearchConfig,
 }
 
 impl Default for CalibrateConfig {
@@ -119,6 +122,8 @@ impl Default for CalibrateConfig {
             max_range_factor: Some(2.5),
             refine_hand_eye: Default::default(),
             hand_eye_check: HandEyeCheckConfig::default(),
+            visibility: VisibilityConfig::default(),
+            search: SearchConfig::default(),
         }
     }
 }
@@ -152,6 +157,8 @@ impl CalibrateConfig {
         }
         self.refine_hand_eye.validate()?;
         self.hand_eye_check.validate()?;
+        self.visibility.validate()?;
+        self.search.validate()?;
         Ok(())
     }
 }
@@ -221,6 +228,10 @@ pub struct Calibration {
     /// The refinement's ICP levels, coarse to fine, with each iteration's residuals (metres) and inliers
     /// (empty when not refined).
     pub icp_levels: Vec<crate::registration::IcpLevelTrace>,
+    /// The hypotheses the refinement refined and judged at full resolution, in the initialiser's order
+    /// ([`crate::calibration::hypotheses`]): one for an initialiser with one answer, none without
+    /// refinement.
+    pub hypotheses: Vec<crate::calibration::hypotheses::JudgedSummary>,
 }
 
 /// The free-space test of the final transform.
@@ -233,10 +244,6 @@ pub struct FreeSpaceCheck {
     /// The margin, metres.
     pub margin_m: f64,
 }
-
-/// Largest free-space violation of a trusted calibration beyond what each robot's own frames show.
-/// Measured on simulated cells: the truth 0.4–1.5%, wrong answers that align the clouds as well 8–17%.
-const MAX_FREE_SPACE_EXCESS: f64 = 0.05;
 
 /// The two robots of a cell: the reference and the first other one.
 pub fn robot_pair(cell: &Cell) -> Result<(&CellRobot, &CellRobot)> {
@@ -525,6 +532,7 @@ pub fn refine_cell(
         consistency: Vec::new(),
         hand_eye_checks: fused.hand_eye_checks.clone(),
         icp_levels: Vec::new(),
+        hypotheses: Vec::new(),
     };
     if !ref_cloud.views.is_empty() && !other_cloud.views.is_empty() {
         let (a, b) = rayon::join(
@@ -553,12 +561,42 @@ pub fn refine_cell(
     progress("refining (trimmed robust ICP)");
     let mut rcfg = cfg.register.clone();
     rcfg.seed = cfg.seed;
-    let reg = register(
-        &other_cloud.cloud,
-        &ref_cloud.cloud,
-        Some(&out.initial.transform),
-        &rcfg,
-    )?;
+    // The initialiser's answer and its alternatives, each refined and judged at full resolution.
+    let starts: Vec<nalgebra::Isometry3<f64>> = std::iter::once(out.initial.transform)
+        .chain(out.initial.alternatives.iter().copied())
+        .collect();
+    let test = FreeSpaceTest::new(fused, &cfg.visibility);
+    let mut judged = refine_and_judge(fused, &starts, &rcfg, &cfg.visibility, test.as_ref())?;
+    let summaries: Vec<_> = judged
+        .iter()
+        .map(|j| j.summary(cfg.visibility.choice_penalty_scale))
+        .collect();
+    let (best, rival) = choose(&summaries, judged[0].registration.voxel, &rcfg);
+    for (k, j) in judged.iter().enumerate() {
+        log::info!(
+            "hypothesis {k}{}: score {:.3}, agreement {:.3}, fitness {:.3}, free space {}{}",
+            if k == best { " (chosen)" } else { "" },
+            summaries[k].score,
+            j.agreement(),
+            j.registration.fitness,
+            j.free_space
+                .as_ref()
+                .map_or("untested".to_string(), |f| format!(
+                    "{:.1}%",
+                    f.violation * 1e2
+                )),
+            truth.map_or(String::new(), |t| {
+                let (r, m) = pose_error(&j.registration.transform, &t);
+                format!(", {r:.3}° / {:.2} mm from the truth", m * 1e3)
+            })
+        );
+    }
+    // The search's own coarse ambiguity gives way to the judgement at full resolution.
+    out.ambiguity = rival;
+    out.hypotheses = summaries;
+    out.hypotheses[best].chosen = true;
+    let chosen = judged.swap_remove(best);
+    let reg = chosen.registration;
     timer.lap("refine");
     out.warnings = reg.warnings.clone();
     out.transform = reg.transform;
@@ -573,33 +611,12 @@ pub fn refine_cell(
     out.converged = reg.converged;
     out.degeneracy = reg.degeneracy;
     out.error_vs_truth = truth.map(|t| pose_error(&reg.transform, &t));
-    out.free_space = free_space_check(fused, &out.transform);
+    out.free_space = chosen.free_space;
     out.icp_levels = reg.icp_levels;
     timer.lap("checks");
     out.trust = calibration_trust(&out, &constraint, Some(&reg.trust));
     out.timings_ms = timer.wall_ms();
     Ok(out)
-}
-
-/// The free-space test of `t_base1_base2` at the margin each robot's own frames allow, when both fused
-/// clouds carry their depth views.
-fn free_space_check(
-    fused: &FusedCell,
-    t_base1_base2: &nalgebra::Isometry3<f64>,
-) -> Option<FreeSpaceCheck> {
-    let (a, b) = (&fused.reference, &fused.other);
-    if a.views.is_empty() || b.views.is_empty() {
-        return None;
-    }
-    let (ra, rb) = (sight(a, true), sight(b, true));
-    let base = VisibilityConfig::default();
-    let (margin_m, own) = self_consistent_margin(&ra, &rb, &base);
-    let vcfg = VisibilityConfig { margin_m, ..base };
-    Some(FreeSpaceCheck {
-        violation: free_space_violation(&ra, &rb, t_base1_base2, &vcfg),
-        own_violation: own,
-        margin_m,
-    })
 }
 
 /// The quality gate of a calibration: the registration's own checks, the priors, the initialiser's
@@ -642,18 +659,30 @@ fn calibration_trust(
         t.fail(h.reason(), h.suggestion());
     }
     if let Some(a) = &c.ambiguity {
-        t.fail(
+        let what = if c.refined {
             format!(
-                "ambiguous: a second answer {:.2}° / {:.1} mm from the initial estimate scores {:.0}% of it",
+                "a second answer {:.2}° / {:.1} mm away, refined at full resolution, explains the data {:.0}% as well (surface agreement over the surfaces' directions, weighed by the free-space test: {:.3} against {:.3}) and passes the free-space test",
+                a.rotation_deg,
+                a.translation * 1e3,
+                a.score_ratio * 1e2,
+                a.score_ratio * a.best_score,
+                a.best_score
+            )
+        } else {
+            format!(
+                "a second answer {:.2}° / {:.1} mm from the initial estimate scores {:.0}% of it in the global stage's verification",
                 a.rotation_deg,
                 a.translation * 1e3,
                 a.score_ratio * 1e2
-            ),
+            )
+        };
+        t.fail(
+            format!("ambiguous: {what}"),
             "give an initialiser (--method marker|checkerboard|features or --init), a crop box around the shared part, or more views of distinctive shared objects",
         );
     }
     if let Some(f) = &c.free_space {
-        if f.violation > f.own_violation + MAX_FREE_SPACE_EXCESS {
+        if !f.passes() {
             t.fail(
                 format!(
                     "free-space test failed: {:.1}% of the surfaces land where the other robot's cameras saw through them or saw them from behind (each robot's own frames: {:.1}%)",

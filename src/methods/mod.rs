@@ -115,7 +115,8 @@ pub fn build(
         Method::Depth => (
             Box::new(GlobalRegistration {
                 config: cfg.register.clone(),
-                ..GlobalRegistration::default()
+                visibility: Some(cfg.visibility.clone()),
+                search: cfg.search.clone(),
             }),
             0.0,
             Vec::new(),

@@ -298,11 +298,24 @@ pub struct Registration {
     pub warnings: Vec<String>,
     /// A far-away runner-up of the global stage that scored almost as well, if there was one.
     pub ambiguity: Option<Ambiguity>,
+    /// The global stage's distinct hypotheses after verification, best first (the first is the one ICP
+    /// started from), each farther than [`RegisterConfig::ambiguity_min_deg`] or
+    /// [`RegisterConfig::ambiguity_min_voxels`] from every better one: at most
+    /// [`VerifyConfig::refine_top`] of them (RANSAC's choice alone without verification). Empty when ICP
+    /// started from a given guess. A caller with more knowledge of the scene (calibrate's free-space test)
+    /// may refine and judge several.
+    pub hypotheses: Vec<Isometry3<f64>>,
     /// Fraction of the finest level's source points that lie on a target surface after the final
     /// transform: point-to-plane distance below half the finest voxel and normals within 30° (signed when
     /// [`RegisterConfig::sided`]). A match of the same surfaces reaches about the shared fraction; clouds
     /// that merely interpenetrate (two random clouds, unrelated scenes) stay low.
     pub surface_agreement: f64,
+    /// The same share with every direction of the source's surfaces weighted alike: the mean over the
+    /// normal-direction bins (64, sign-free) that hold at least 1% of the points of each bin's share on a
+    /// target surface. A dominant plane (a table laid on a table at any turn) is then one direction among
+    /// many, and a hypothesis must also align the objects' faces. Equal to `surface_agreement` without
+    /// source normals.
+    pub balanced_agreement: f64,
     /// The finest ICP voxel (cloud units).
     pub finest_voxel: f64,
     /// Whether the result can be trusted, and why not ([`crate::registration::trust`]).
@@ -573,16 +586,21 @@ fn run_pipeline(
 
     progress("features");
     let mut ambiguity = None;
+    let mut hypotheses = Vec::new();
     let (initial, global_summary) = match init {
         Some(t) => (*t, None),
         None => {
             let mut g = global(&s0, &t0, voxel, cfg, &mut timer, progress)?;
             if let Some(vcfg) = &cfg.verify {
                 progress("verifying hypotheses");
-                ambiguity = verify(&mut g, &s0, &t0, voxel, prior, cfg, vcfg, &mut timer);
+                (ambiguity, hypotheses) =
+                    verify(&mut g, &s0, &t0, voxel, prior, cfg, vcfg, &mut timer);
             }
             progress("ICP");
             let summary = summarize_global(&g.ransac);
+            if hypotheses.is_empty() {
+                hypotheses.push(summary.transform);
+            }
             (summary.transform, Some(summary))
         }
     };
@@ -620,7 +638,9 @@ fn run_pipeline(
         stages: timer.into_records(),
         warnings,
         ambiguity,
-        surface_agreement: pyramid.surface_agreement,
+        hypotheses,
+        surface_agreement: pyramid.surface_agreement.plain,
+        balanced_agreement: pyramid.surface_agreement.balanced,
         finest_voxel: pyramid.finest_voxel,
         trust: Trust::default(),
         initial,
@@ -783,7 +803,8 @@ fn level_features(level: &Level, fcfg: &FpfhConfig) -> Vec<Fpfh> {
 /// Stage 5. Takes RANSAC's hypotheses on the global-voxel levels; refines and rescores the
 /// [`VerifyConfig::max_candidates`] most promising ([`verify_candidates`]), and makes the winner (when it
 /// scores above 0) the global stage's transform and inlier count. Gives the ambiguity among the fully
-/// refined ones, if any. Laps `verify`.
+/// refined ones, if any, and the distinct ones that scored above 0 ([`distinct_hypotheses`]). Laps
+/// `verify`.
 #[allow(clippy::too_many_arguments)]
 fn verify(
     g: &mut GlobalStage,
@@ -794,7 +815,7 @@ fn verify(
     cfg: &RegisterConfig,
     vcfg: &VerifyConfig,
     timer: &mut StageTimer,
-) -> Option<Ambiguity> {
+) -> (Option<Ambiguity>, Vec<Isometry3<f64>>) {
     let r = &mut g.ransac;
     let order = candidates_to_verify(r, prior, vcfg.max_candidates);
     let cands: Vec<Isometry3<f64>> = order.iter().map(|&k| r.candidates[k].2).collect();
@@ -814,7 +835,9 @@ fn verify(
     for c in v.iter_mut() {
         c.candidate = order[c.candidate];
     }
-    let ambiguity = find_ambiguity(&v[..vcfg.refine_top.max(1).min(v.len())], voxel, cfg);
+    let refined = &v[..vcfg.refine_top.max(1).min(v.len())];
+    let ambiguity = find_ambiguity(refined, voxel, cfg);
+    let hypotheses = distinct_hypotheses(refined, voxel, cfg);
     if let Some(best) = v.first().filter(|b| b.score > 0.0) {
         log::info!(
             "verification: candidate {} of {} wins with score {:.3} (RANSAC's choice: {:.3})",
@@ -827,7 +850,28 @@ fn verify(
         r.inlier_count = r.candidates[best.candidate].0;
     }
     timer.lap_counted("verify", Some(cands.len()), Some(v.len()));
-    ambiguity
+    (ambiguity, hypotheses)
+}
+
+/// The fully verified candidates (best first) that scored above 0, each kept only when it lies farther
+/// than [`RegisterConfig::ambiguity_min_deg`] or [`RegisterConfig::ambiguity_min_voxels`] × `voxel` from
+/// every one kept before it.
+fn distinct_hypotheses(
+    verified: &[crate::registration::verify::Verified],
+    voxel: f64,
+    cfg: &RegisterConfig,
+) -> Vec<Isometry3<f64>> {
+    let mut kept: Vec<Isometry3<f64>> = Vec::new();
+    for v in verified.iter().filter(|v| v.score > 0.0) {
+        let far_from_all = kept.iter().all(|k| {
+            let (rot_deg, trans) = crate::geometry::transform::pose_error(&v.transform, k);
+            rot_deg > cfg.ambiguity_min_deg || trans > cfg.ambiguity_min_voxels * voxel
+        });
+        if far_from_all {
+            kept.push(v.transform);
+        }
+    }
+    kept
 }
 
 /// Indices into RANSAC's candidates of the (at most `max`, at least one) to verify: the most feature
@@ -904,7 +948,7 @@ struct Pyramid {
     /// The finest level's (subsampled) source points.
     finest_source: Vec<[f32; 3]>,
     /// [`surface_agreement`] at the finest level.
-    surface_agreement: f64,
+    surface_agreement: Agreement,
     /// The finest level's voxel (cloud units).
     finest_voxel: f64,
     /// Degeneracy judged at the coarsest level.
@@ -933,7 +977,7 @@ fn icp_pyramid(
     let mut t = *initial;
     let mut converged = true;
     let mut iterations = 0;
-    let mut last: Option<(IcpResult, Vec<[f32; 3]>, f64)> = None;
+    let mut last: Option<(IcpResult, Vec<[f32; 3]>, Agreement)> = None;
     let mut finest_voxel = voxel;
     let mut coarse_degeneracy = None;
     let mut traces = Vec::new();
@@ -1189,9 +1233,20 @@ fn find_ambiguity(
     })
 }
 
+/// The share of source points on a target surface: of all, and per normal direction ([`surface_agreement`]).
+#[derive(Clone, Copy, Debug)]
+struct Agreement {
+    /// [`Registration::surface_agreement`].
+    plain: f64,
+    /// [`Registration::balanced_agreement`].
+    balanced: f64,
+}
+
 /// Fraction of `source` points (mapped by `t`) whose nearest target point has a point-to-plane distance
 /// below `tau` and a normal within 30° of theirs (signed when `sided`); without source normals only the
-/// distance counts. The target's normals are its cloud's, else `lazy`'s.
+/// distance counts. The target's normals are its cloud's, else `lazy`'s. Also the mean of that fraction
+/// over the source normals' direction bins that hold at least 1% of the points (the plain fraction
+/// without source normals). NaN for both without target normals.
 fn surface_agreement(
     source: &[[f32; 3]],
     source_normals: Option<&[[f32; 3]]>,
@@ -1200,31 +1255,37 @@ fn surface_agreement(
     t: &Isometry3<f64>,
     tau: f64,
     sided: bool,
-) -> f64 {
+) -> Agreement {
     let normal_of = |j: usize| match (target.cloud.normals.as_deref(), lazy) {
         (Some(n), _) => n[j],
         (None, Some(l)) => l.get(j),
         (None, None) => unreachable!("checked below"),
     };
     if target.cloud.normals.is_none() && lazy.is_none() {
-        return f64::NAN;
+        return Agreement {
+            plain: f64::NAN,
+            balanced: f64::NAN,
+        };
     }
     if source.is_empty() {
-        return 0.0;
+        return Agreement {
+            plain: 0.0,
+            balanced: 0.0,
+        };
     }
     let cos_max = 30f64.to_radians().cos();
     let reach2 = (4.0 * tau * tau) as f32;
-    let hits = source
+    let hit: Vec<bool> = source
         .par_iter()
         .enumerate()
-        .filter(|(i, p)| {
+        .map(|(i, p)| {
             let pw = crate::geometry::cloud::transform_point(t, p);
             let Some((j, _)) = target.index.nearest_within(&pw, reach2) else {
                 return false;
             };
             let nt = to_v64(&normal_of(j));
             if let Some(sn) = source_normals {
-                let c = (t.rotation * to_v64(&sn[*i])).dot(&nt);
+                let c = (t.rotation * to_v64(&sn[i])).dot(&nt);
                 if (if sided { c } else { c.abs() }) < cos_max {
                     return false;
                 }
@@ -1233,8 +1294,32 @@ fn surface_agreement(
                 .abs()
                 < tau
         })
-        .count();
-    hits as f64 / source.len() as f64
+        .collect();
+    let plain = hit.iter().filter(|&&h| h).count() as f64 / source.len() as f64;
+    let Some(normals) = source_normals.filter(|n| n.len() == source.len()) else {
+        return Agreement {
+            plain,
+            balanced: plain,
+        };
+    };
+    let mut bins = [(0usize, 0usize); 64];
+    for (n, &h) in normals.iter().zip(&hit) {
+        let b = &mut bins[crate::registration::verify::normal_bin(n) as usize];
+        b.0 += 1;
+        b.1 += h as usize;
+    }
+    let min = (source.len() / 100).max(1);
+    let shares: Vec<f64> = bins
+        .iter()
+        .filter(|b| b.0 >= min)
+        .map(|b| b.1 as f64 / b.0 as f64)
+        .collect();
+    let balanced = if shares.is_empty() {
+        plain
+    } else {
+        shares.iter().sum::<f64>() / shares.len() as f64
+    };
+    Agreement { plain, balanced }
 }
 
 /// Centroid of `points` and their RMS distance from it (metres).

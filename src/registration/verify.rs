@@ -79,7 +79,7 @@ pub struct Verified {
 
 /// Key of a unit normal's direction, sign-free: 4 cells per axis of the canonical (first non-zero
 /// component positive) vector.
-fn normal_bin(n: &[f32; 3]) -> u16 {
+pub(crate) fn normal_bin(n: &[f32; 3]) -> u16 {
     let s = if n[2] < 0.0 || (n[2] == 0.0 && (n[1] < 0.0 || (n[1] == 0.0 && n[0] < 0.0))) {
         -1.0
     } else {

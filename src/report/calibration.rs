@@ -100,6 +100,8 @@ pub struct CalibrationReport {
     pub free_space: Option<FreeSpaceCheck>,
     /// A far-away second answer that scored almost as well.
     pub ambiguity: Option<AmbiguityReport>,
+    /// The hypotheses refined and judged at full resolution (one for an initialiser with one answer).
+    pub hypotheses: Vec<HypothesisReport>,
     /// The initialiser's estimate.
     pub initial: InitialReport,
     /// The error against the cell's ground truth.
@@ -135,6 +137,40 @@ pub struct CalibrationReport {
     pub joint_hand_eye: Option<super::JointHandEyeReport>,
 }
 
+/// One hypothesis the refinement refined and judged at full resolution.
+#[derive(Clone, Debug, Serialize)]
+pub struct HypothesisReport {
+    /// The refined `T_base1_base2`.
+    pub transform: PoseReport,
+    /// Its surface agreement at the finest level, 0–1.
+    pub agreement: f64,
+    /// Its refinement's fitness, 0–1.
+    pub fitness: f64,
+    /// Its free-space violation, 0–1; `None` without depth views.
+    pub free_space_violation: Option<f64>,
+    /// It passes the free-space test.
+    pub passes_free_space: bool,
+    /// What the choice ranks by: the agreement weighed by the free-space test.
+    pub score: f64,
+    /// It is the answer.
+    pub chosen: bool,
+}
+
+impl HypothesisReport {
+    /// From the calibration's summary of a judged hypothesis.
+    pub fn new(h: &crate::calibration::hypotheses::JudgedSummary) -> Self {
+        HypothesisReport {
+            transform: PoseReport::new(&h.transform),
+            agreement: h.agreement,
+            fitness: h.fitness,
+            free_space_violation: h.free_space_violation,
+            passes_free_space: h.passes_free_space,
+            score: h.score,
+            chosen: h.chosen,
+        }
+    }
+}
+
 impl CalibrationReport {
     /// The report of `c` for the cell directory `cell`, with the frame ids of the ROS outputs and the
     /// whole run's wall time (milliseconds).
@@ -163,6 +199,7 @@ impl CalibrationReport {
             suggestions: c.trust.suggestions.clone(),
             free_space: c.free_space.clone(),
             ambiguity: c.ambiguity.as_ref().map(AmbiguityReport::new),
+            hypotheses: c.hypotheses.iter().map(HypothesisReport::new).collect(),
             initial: InitialReport {
                 transform: PoseReport::new(&c.initial.transform),
                 detail: c.initial.detail.clone(),
