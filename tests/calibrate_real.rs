@@ -33,6 +33,23 @@ fn seven_scenes_cell_is_recovered() {
             "7-Scenes cell ({name}): initial {ri:.2} deg {:.1} mm -> {r:.3} deg, {:.1} mm; fitness {:.3}, overlap {:.3}, points {:?}, {:?}",
             ti * 1e3, t * 1e3, c.fitness.unwrap(), c.overlap.unwrap(), c.fused_points, c.timings_ms
         );
+        let sigma = |k: usize| c.covariance[(k, k)].sqrt();
+        eprintln!(
+            "  trusted {} {:?}; 1-sigma {:.3} {:.3} {:.3} deg, {:.1} {:.1} {:.1} mm; normalised error {:?}; pose scatter {:?}",
+            c.trust.trusted,
+            c.trust.reasons,
+            sigma(0).to_degrees(),
+            sigma(1).to_degrees(),
+            sigma(2).to_degrees(),
+            sigma(3) * 1e3,
+            sigma(4) * 1e3,
+            sigma(5) * 1e3,
+            c.normalised_error,
+            c.pose_scatter
+                .iter()
+                .map(|p| (p.scatter_mm, p.scatter_deg, p.displacement_mm, p.applied))
+                .collect::<Vec<_>>()
+        );
         assert!(r < 1.0 && t < 0.04, "{name}: {r:.3} deg, {:.1} mm", t * 1e3);
     }
 }

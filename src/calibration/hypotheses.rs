@@ -386,6 +386,9 @@ mod tests {
             fuse_ms: 0.0,
             hand_eye_checks: Vec::new(),
             hand_eye_check_ms: 0.0,
+            pose_scatter: Vec::new(),
+            pose_scatter_ms: 0.0,
+            robots: Vec::new(),
         };
         let body = VisibilityConfig {
             robot_body_radius_m: 0.0,

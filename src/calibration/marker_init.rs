@@ -554,34 +554,18 @@ pub fn markers_need_vision(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cell::CellFrame;
     use crate::geometry::transform::pose_error;
     use crate::geometry::transform::random_isometry;
     use crate::geometry::Rng;
     use nalgebra::{Translation3, UnitQuaternion};
-    use std::path::PathBuf;
 
     fn robot(name: &str, poses: &[Isometry3<f64>]) -> CellRobot {
-        CellRobot {
-            name: name.into(),
-            intrinsics: Intrinsics::pinhole(640, 480, 600.0, 600.0, 320.0, 240.0),
-            t_ee_cam: Isometry3::translation(0.0, 0.0, 0.05),
-            poses_path: PathBuf::from("poses.csv"),
-            intrinsics_path: PathBuf::from("intrinsics.json"),
-            hand_eye_path: None,
-            uncertainty: Default::default(),
-            frames: poses
-                .iter()
-                .enumerate()
-                .map(|(i, p)| CellFrame {
-                    id: format!("{i:04}"),
-                    t_base_ee: *p,
-                    depth_path: PathBuf::new(),
-                    color_path: None,
-                    pose_line: i + 2,
-                })
-                .collect(),
-        }
+        CellRobot::for_tests(
+            name,
+            Intrinsics::pinhole(640, 480, 600.0, 600.0, 320.0, 240.0),
+            Isometry3::translation(0.0, 0.0, 0.05),
+            poses,
+        )
     }
 
     #[test]

@@ -12,6 +12,7 @@ pub mod hypotheses;
 pub mod initializer;
 pub mod marker_init;
 pub mod plan;
+pub mod pose_scatter;
 pub mod priors;
 pub mod robot_to_robot;
 pub mod uncertainty;

@@ -2,9 +2,12 @@
 //! `T_base1_base2` from an [`Initializer`], refine it with trimmed robust ICP, and report its quality.
 
 use crate::calibration::consistency::{robot_consistency, ConsistencyConfig, RobotConsistency};
-use crate::calibration::handeye::depth::check::{check_hand_eye, HandEyeCheck, HandEyeCheckConfig};
+use crate::calibration::handeye::depth::check::{
+    check_hand_eye_under_scatter, HandEyeCheck, HandEyeCheckConfig,
+};
 use crate::calibration::hypotheses::{choose, refine_and_judge, FreeSpaceTest};
 use crate::calibration::initializer::{InitialGuess, Initializer, InitializerInput, SearchConfig};
+use crate::calibration::pose_scatter::{estimate_pose_scatter, PoseScatter, PoseScatterConfig};
 use crate::calibration::priors::CellPriors;
 use crate::calibration::uncertainty::{
     cloud_motion_covariance, inputs_covariance, normalised_error, NormalisedError,
@@ -65,6 +68,9 @@ pub struct CalibrateConfig {
     pub visibility: VisibilityConfig,
     /// The depth initialiser's searches ([`SearchConfig`]).
     pub search: SearchConfig,
+    /// Each robot's pose scatter from its own frames, and the frames moved by it before they are fused
+    /// ([`crate::calibration::pose_scatter`]).
+    pub pose_scatter: PoseScatterConfig,
 }
 
 impl Default for CalibrateConfig {
@@ -124,6 +130,7 @@ impl Default for CalibrateConfig {
             hand_eye_check: HandEyeCheckConfig::default(),
             visibility: VisibilityConfig::default(),
             search: SearchConfig::default(),
+            pose_scatter: PoseScatterConfig::default(),
         }
     }
 }
@@ -158,6 +165,7 @@ impl CalibrateConfig {
         self.refine_hand_eye.validate()?;
         self.hand_eye_check.validate()?;
         self.visibility.validate()?;
+        self.pose_scatter.validate()?;
         self.search.validate()?;
         Ok(())
     }
@@ -232,6 +240,9 @@ pub struct Calibration {
     /// ([`crate::calibration::hypotheses`]): one for an initialiser with one answer, none without
     /// refinement.
     pub hypotheses: Vec<crate::calibration::hypotheses::JudgedSummary>,
+    /// Each robot's pose scatter from its own frames (reference, other), when the clouds were fused and
+    /// `pose_scatter.enabled`.
+    pub pose_scatter: Vec<PoseScatter>,
 }
 
 /// The free-space test of the final transform.
@@ -279,6 +290,15 @@ pub struct FusedCell {
     pub hand_eye_checks: Vec<HandEyeCheck>,
     /// Wall time of those checks, milliseconds.
     pub hand_eye_check_ms: f64,
+    /// Each robot's pose scatter (reference, other; empty when `pose_scatter.enabled` is off or nothing
+    /// was fused).
+    pub pose_scatter: Vec<PoseScatter>,
+    /// Wall time of the pose scatter estimates and the fusion again of moved frames, milliseconds.
+    pub pose_scatter_ms: f64,
+    /// The robots as fused (reference, other): the cell's, with the frames moved by their pose
+    /// corrections and the pose 1-σ widened to the scatter where it was applied; empty when nothing was
+    /// fused.
+    pub robots: Vec<CellRobot>,
 }
 
 impl FusedCell {
@@ -291,6 +311,9 @@ impl FusedCell {
             fuse_ms: 0.0,
             hand_eye_checks: Vec::new(),
             hand_eye_check_ms: 0.0,
+            pose_scatter: Vec::new(),
+            pose_scatter_ms: 0.0,
+            robots: Vec::new(),
         })
     }
 }
@@ -314,6 +337,45 @@ pub fn fuse_cell(cell: &Cell, cfg: &CalibrateConfig) -> Result<FusedCell> {
     let fuse = |r: &CellRobot| -> Result<FusedCloud> { fuse_robot(r, &cfg.fuse, &|_| {}) };
     let (ref_cloud, other_cloud) = rayon::join(|| fuse(reference), || fuse(other));
     let (mut ref_cloud, mut other_cloud) = (ref_cloud?, other_cloud?);
+    let fuse_ms = t0.elapsed().as_secs_f64() * 1e3;
+    // Each robot's frames moved to agree with each other where their poses scatter, then fused again.
+    let t_scatter = Instant::now();
+    let mut pose_scatter = Vec::new();
+    let mut robots = vec![reference.clone(), other.clone()];
+    if cfg.pose_scatter.enabled && !ref_cloud.views.is_empty() && !other_cloud.views.is_empty() {
+        let estimate =
+            |r: &CellRobot, c: &FusedCloud| -> Result<(PoseScatter, Option<FusedCloud>)> {
+                let s = estimate_pose_scatter(r, &c.views, &cfg.pose_scatter)?;
+                let refused = if s.applied {
+                    Some(fuse_robot(&s.corrected(r), &cfg.fuse, &|_| {})?)
+                } else {
+                    None
+                };
+                Ok((s, refused))
+            };
+        let (a, b) = rayon::join(
+            || estimate(reference, &ref_cloud),
+            || estimate(other, &other_cloud),
+        );
+        for (k, (s, cloud)) in [a?, b?].into_iter().enumerate() {
+            if let Some(c) = cloud {
+                log::info!(
+                    "robot {}: poses scatter {:.2} mm / {:.3}° (RMS per axis); frames moved and fused again",
+                    s.robot,
+                    s.scatter_mm,
+                    s.scatter_deg
+                );
+                *(if k == 0 {
+                    &mut ref_cloud
+                } else {
+                    &mut other_cloud
+                }) = c;
+            }
+            robots[k] = s.corrected(&robots[k]);
+            pose_scatter.push(s);
+        }
+    }
+    let pose_scatter_ms = t_scatter.elapsed().as_secs_f64() * 1e3;
     // The side each surface was seen from travels with the points as their normals.
     ref_cloud.make_sided();
     other_cloud.make_sided();
@@ -328,16 +390,20 @@ pub fn fuse_cell(cell: &Cell, cfg: &CalibrateConfig) -> Result<FusedCell> {
             }
         }
     }
-    let fuse_ms = t0.elapsed().as_secs_f64() * 1e3;
     let t1 = Instant::now();
     let hand_eye_checks = if cfg.hand_eye_check.enabled {
-        let check = |r: &CellRobot, c: &FusedCloud| {
+        // On the cell's own poses: the moved frames could hide a hand-eye that is off. Where the poses
+        // scatter, the test allows for what the scatter alone makes the depth ask for.
+        let check = |r: &CellRobot, c: &FusedCloud, k: usize| {
             let views = (!c.views.is_empty()).then_some(c.views.as_slice());
-            check_hand_eye(r, views, &cfg.hand_eye_check)
+            let scatter = pose_scatter
+                .get(k)
+                .and_then(|s: &PoseScatter| s.hand_eye_covariance.as_ref());
+            check_hand_eye_under_scatter(r, views, &cfg.hand_eye_check, scatter)
         };
         let (a, b) = rayon::join(
-            || check(reference, &ref_cloud),
-            || check(other, &other_cloud),
+            || check(reference, &ref_cloud, 0),
+            || check(other, &other_cloud, 1),
         );
         vec![a?, b?]
     } else {
@@ -350,6 +416,9 @@ pub fn fuse_cell(cell: &Cell, cfg: &CalibrateConfig) -> Result<FusedCell> {
         fuse_ms,
         hand_eye_checks,
         hand_eye_check_ms: t1.elapsed().as_secs_f64() * 1e3,
+        pose_scatter,
+        pose_scatter_ms,
+        robots,
     })
 }
 
@@ -468,9 +537,14 @@ pub fn calibrate_request(req: CalibrateRequest) -> Result<(Calibration, FusedCel
     let mut c = refine_cell(cell, &fused, initializer, cfg, refine, progress)?;
     if fuse {
         c.timings_ms.insert(0, ("fuse".into(), fused.fuse_ms));
-        if !fused.hand_eye_checks.is_empty() {
+        if !fused.pose_scatter.is_empty() {
             c.timings_ms
-                .insert(1, ("hand_eye_check".into(), fused.hand_eye_check_ms));
+                .insert(1, ("pose_scatter".into(), fused.pose_scatter_ms));
+        }
+        if !fused.hand_eye_checks.is_empty() {
+            let at = c.timings_ms.len().min(2);
+            c.timings_ms
+                .insert(at, ("hand_eye_check".into(), fused.hand_eye_check_ms));
         }
     }
     Ok((c, fused))
@@ -487,7 +561,10 @@ pub fn refine_cell(
     refine: bool,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Calibration> {
-    let (reference, other) = robot_pair(cell)?;
+    let (reference, other) = match fused.robots.as_slice() {
+        [a, b] => (a, b),
+        _ => robot_pair(cell)?,
+    };
     let mut timer = StageTimer::new();
     let constraint = fused.priors.constraint();
     let (ref_cloud, other_cloud) = (&fused.reference, &fused.other);
@@ -533,6 +610,7 @@ pub fn refine_cell(
         hand_eye_checks: fused.hand_eye_checks.clone(),
         icp_levels: Vec::new(),
         hypotheses: Vec::new(),
+        pose_scatter: fused.pose_scatter.clone(),
     };
     if !ref_cloud.views.is_empty() && !other_cloud.views.is_empty() {
         let (a, b) = rayon::join(

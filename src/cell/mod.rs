@@ -575,6 +575,36 @@ impl crate::fusion::DepthFrames for CellRobot {
 }
 
 impl CellRobot {
+    /// A robot of unit tests: frames `0000`, `0001`, … at flange poses `poses`, no files behind them.
+    #[cfg(test)]
+    pub(crate) fn for_tests(
+        name: &str,
+        intrinsics: Intrinsics,
+        t_ee_cam: Isometry3<f64>,
+        poses: &[Isometry3<f64>],
+    ) -> CellRobot {
+        CellRobot {
+            name: name.into(),
+            intrinsics,
+            t_ee_cam,
+            poses_path: PathBuf::from("poses.csv"),
+            intrinsics_path: PathBuf::from("intrinsics.json"),
+            hand_eye_path: None,
+            uncertainty: Default::default(),
+            frames: poses
+                .iter()
+                .enumerate()
+                .map(|(i, p)| CellFrame {
+                    id: format!("{i:04}"),
+                    t_base_ee: *p,
+                    depth_path: PathBuf::new(),
+                    color_path: None,
+                    pose_line: i + 2,
+                })
+                .collect(),
+        }
+    }
+
     /// `T_base_cam = T_base_ee · T_ee_cam` of frame `i`.
     pub fn t_base_cam(&self, i: usize) -> Isometry3<f64> {
         self.frames[i].t_base_ee * self.t_ee_cam

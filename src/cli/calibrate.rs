@@ -514,6 +514,39 @@ fn print_truth(c: &Calibration) {
 
 /// The independent checks (hand-eyes, free space, ambiguity) and the trust verdict with its reasons.
 fn print_checks(c: &Calibration) {
+    for p in &c.pose_scatter {
+        if p.estimated {
+            println!(
+                "poses   {:<7}scatter {:.2} mm / {:.3} deg per axis at the scene (at least the stated repeatability); corrections move the scene {:.2} mm{}{}{}",
+                p.robot,
+                p.scatter_mm,
+                p.scatter_deg,
+                p.displacement_mm,
+                if p.applied {
+                    "; frames moved to agree, 1-sigma widened"
+                } else if p.widened {
+                    "; 1-sigma widened"
+                } else {
+                    ""
+                },
+                p.note
+                    .as_deref()
+                    .map(|n| format!(" ({n})"))
+                    .unwrap_or_default(),
+                if p.outliers.is_empty() {
+                    String::new()
+                } else {
+                    format!("; left as they are: frames {}", p.outliers.join(", "))
+                }
+            );
+        } else {
+            println!(
+                "poses   {:<7}scatter not estimated: {}",
+                p.robot,
+                p.note.as_deref().unwrap_or("")
+            );
+        }
+    }
     for h in &c.hand_eye_checks {
         if h.checked {
             println!(

@@ -112,6 +112,8 @@ pub struct CalibrationReport {
     pub consistency: Vec<RobotConsistency>,
     /// Each robot's stated hand-eye and its 1-σ against its own depth frames.
     pub hand_eye_check: Vec<HandEyeCheck>,
+    /// Each robot's pose scatter from its own frames, and whether its frames were moved by it.
+    pub pose_scatter: Vec<crate::calibration::pose_scatter::PoseScatter>,
     /// The part of the covariance the cell's inputs add (hand-eyes, pose repeatability, depth scale).
     pub inputs_covariance: [[f64; 6]; 6],
     /// Frames per robot.
@@ -211,6 +213,7 @@ impl CalibrationReport {
             normalised_error: c.normalised_error,
             consistency: c.consistency.clone(),
             hand_eye_check: c.hand_eye_checks.clone(),
+            pose_scatter: c.pose_scatter.clone(),
             inputs_covariance: matrix6_rows(&c.inputs_covariance),
             frames: PerRobot {
                 reference: c.frames[0],

@@ -107,6 +107,8 @@ pub struct HandEyeCheck {
     pub determined: Vec<&'static str>,
     /// The stated hand-eye and its 1-σ agree with the depth frames.
     pub consistent: bool,
+    /// The test also allowed for the robot's pose scatter (its frames were moved by it).
+    pub pose_scatter_counted: bool,
 }
 
 impl HandEyeCheck {
@@ -127,6 +129,7 @@ impl HandEyeCheck {
             median_residual_changed_mm: 0.0,
             determined: Vec::new(),
             consistent: true,
+            pose_scatter_counted: false,
         }
     }
 
@@ -134,7 +137,7 @@ impl HandEyeCheck {
     pub fn reason(&self) -> String {
         format!(
             "robot {}'s hand-eye disagrees with its own depth frames: they agree best with it moved {:.2}° / {:.1} mm, \
-             {:.1}σ of the hand-eye's 1-σ {:.3}° / {:.2} mm ({}) and the fit's own (limit {:.1}σ; median residual \
+             {:.1}σ of the hand-eye's 1-σ {:.3}° / {:.2} mm ({}){} and the fit's own (limit {:.1}σ; median residual \
              {:.2} -> {:.2} mm{})",
             self.robot,
             self.change_deg,
@@ -146,6 +149,11 @@ impl HandEyeCheck {
                 "as the cell states"
             } else {
                 "depthcal's default: the cell states none"
+            },
+            if self.pose_scatter_counted {
+                ", the poses' scatter"
+            } else {
+                ""
             },
             self.max_distance_sigmas,
             self.median_residual_mm,
@@ -189,6 +197,19 @@ pub fn check_hand_eye(
     robot: &CellRobot,
     views: Option<&[DepthView]>,
     cfg: &HandEyeCheckConfig,
+) -> Result<HandEyeCheck> {
+    check_hand_eye_under_scatter(robot, views, cfg, None)
+}
+
+/// [`check_hand_eye`] of a robot whose poses scatter: `scatter` is the covariance (camera frame, as the
+/// change) of the hand-eye change that the poses' scatter alone would make the depth ask for
+/// ([`crate::calibration::pose_scatter::PoseScatter::hand_eye_covariance`]); it is added to the test's
+/// covariance, so that scattered poses are told apart from a hand-eye that is off.
+pub fn check_hand_eye_under_scatter(
+    robot: &CellRobot,
+    views: Option<&[DepthView]>,
+    cfg: &HandEyeCheckConfig,
+    scatter: Option<&Matrix6<f64>>,
 ) -> Result<HandEyeCheck> {
     cfg.validate()?;
     if robot.frames.len() < cfg.depth.min_frames {
@@ -239,7 +260,7 @@ pub fn check_hand_eye(
         st * st,
         st * st,
     ));
-    let Some(d2) = (fit.covariance + prior)
+    let Some(d2) = (fit.covariance + prior + scatter.copied().unwrap_or_else(Matrix6::zeros))
         .cholesky()
         .map(|c| delta.dot(&c.solve(&delta)))
         .filter(|d2| d2.is_finite())
@@ -265,5 +286,6 @@ pub fn check_hand_eye(
         median_residual_changed_mm: fit.median_after_m * 1e3,
         determined,
         consistent: d2 <= cfg.max_distance_sq,
+        pose_scatter_counted: scatter.is_some(),
     })
 }
