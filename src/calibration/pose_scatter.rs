@@ -50,8 +50,8 @@ pub struct PoseScatterConfig {
     pub min_frames: usize,
     /// Depth blocks sampled per frame at most (default 600) ...
     pub sample_points: usize,
-    /// ... and point tests over all frame pairs at most (default 600 000): fewer samples per frame on robots
-    /// with many frames.
+    /// ... and point tests over all frame pairs at most (default 300 000: 394 samples a frame at 20
+    /// frames): fewer samples per frame on robots with many frames.
     pub max_pair_tests: usize,
     /// Association gates, coarse to fine, metres (default `[0.02, 0.008]`).
     pub gates_m: Vec<f64>,
@@ -86,7 +86,7 @@ impl Default for PoseScatterConfig {
             enabled: true,
             min_frames: 4,
             sample_points: 600,
-            max_pair_tests: 600_000,
+            max_pair_tests: 300_000,
             gates_m: vec![0.02, 0.008],
             iterations: 3,
             prior_mm: 20.0,
@@ -450,6 +450,23 @@ pub fn estimate_pose_scatter(
         }
         ((sq - var) / m).max(floor * floor).sqrt()
     };
+    let displacement = |e: &Vector6<f64>| -> f64 {
+        // RMS displacement at the scene: translation plus rotation at the scene's RMS radius.
+        (Vector3::new(e[3], e[4], e[5]).norm_squared()
+            + (Vector3::new(e[0], e[1], e[2]).norm() * range).powi(2))
+        .sqrt()
+    };
+    // RMS per axis over the frames not fixed.
+    let rms_displacement = |eps: &[Vector6<f64>], fixed: &[bool]| -> f64 {
+        let kept: Vec<usize> = (0..n).filter(|&i| !fixed[i]).collect();
+        let m = kept.len().max(1) as f64;
+        (kept
+            .iter()
+            .map(|&i| displacement(&eps[i]).powi(2))
+            .sum::<f64>()
+            / (3.0 * m))
+            .sqrt()
+    };
     let u = &robot.uncertainty;
     // At the scene's centre, a flange rotation also shifts: the repeatability there.
     let floor_r = u.pose_rotation_rad;
@@ -457,17 +474,16 @@ pub fn estimate_pose_scatter(
     let loose = (cfg.prior_deg.to_radians(), cfg.prior_mm * 1e-3);
     // Round 1 with the loose prior finds the scatter; round 2 solves again with the scatter as the prior,
     // so that corrections the frames' own noise explains shrink away.
+    // When even the loose prior's corrections stay below `apply_above_mm`, the second round (which only
+    // shrinks them) cannot make the scatter significant, and is skipped.
     let rounds = |fixed: &[bool]| -> Option<(Solved, f64, f64)> {
         let first = solve(fixed, loose.0, loose.1)?;
         let sr = scatter(&first, fixed, 0, floor_r).min(loose.0);
         let st = scatter(&first, fixed, 3, floor_t).min(loose.1);
+        if rms_displacement(&first.eps, fixed) * 1e3 <= cfg.apply_above_mm {
+            return Some((first, sr, st));
+        }
         Some((solve(fixed, sr, st)?, sr, st))
-    };
-    let displacement = |e: &Vector6<f64>| -> f64 {
-        // RMS displacement at the scene: translation plus rotation at the scene's RMS radius.
-        (Vector3::new(e[3], e[4], e[5]).norm_squared()
-            + (Vector3::new(e[0], e[1], e[2]).norm() * range).powi(2))
-        .sqrt()
     };
     let mut fixed = vec![false; n];
     let Some((mut solved, mut sr, mut st)) = rounds(&fixed) else {
@@ -504,14 +520,7 @@ pub fn estimate_pose_scatter(
     }
     let eps = &solved.eps;
     let kept: Vec<usize> = (0..n).filter(|&i| !fixed[i]).collect();
-    let m = kept.len().max(1) as f64;
-    let displacement_mm = (kept
-        .iter()
-        .map(|&i| displacement(&eps[i]).powi(2))
-        .sum::<f64>()
-        / (3.0 * m))
-        .sqrt()
-        * 1e3;
+    let displacement_mm = rms_displacement(eps, &fixed) * 1e3;
     let (scatter_mm, scatter_deg) = (st * 1e3, sr.to_degrees());
     log::debug!(
         "robot {}: pose scatter {scatter_mm:.3} mm / {scatter_deg:.4}° at the scene, corrections {displacement_mm:.3} mm RMS, {tests} tests, inflation {:.2}",

@@ -673,7 +673,25 @@ pub fn refine_cell(
     out.ambiguity = rival;
     out.hypotheses = summaries;
     out.hypotheses[best].chosen = true;
-    let chosen = judged.swap_remove(best);
+    let mut chosen = judged.swap_remove(best);
+    // A refinement that ran out of iterations gets them: once more, from where it stopped, with the whole
+    // budget again. Its answer replaces the first only if it converged; otherwise the result stays
+    // unconverged (and untrusted).
+    if !chosen.registration.converged {
+        let from = chosen.registration.transform;
+        let again = refine_and_judge(fused, &[from], &rcfg, &cfg.visibility, test.as_ref())?;
+        if let Some(j) = again.into_iter().next() {
+            let (r, m) = pose_error(&j.registration.transform, &from);
+            log::info!(
+                "the chosen hypothesis ran out of ICP iterations; continued: moved {r:.4}° / {:.3} mm, converged {}",
+                m * 1e3,
+                j.registration.converged
+            );
+            if j.registration.converged {
+                chosen = j;
+            }
+        }
+    }
     let reg = chosen.registration;
     timer.lap("refine");
     out.warnings = reg.warnings.clone();
