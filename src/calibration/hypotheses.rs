@@ -379,17 +379,11 @@ mod tests {
             cloud: PointCloud::from_points(points),
             ..Default::default()
         };
-        let fused = FusedCell {
-            reference: cloud.clone(),
-            other: cloud,
-            priors: crate::calibration::priors::CellPriors::none(),
-            fuse_ms: 0.0,
-            hand_eye_checks: Vec::new(),
-            hand_eye_check_ms: 0.0,
-            pose_scatter: Vec::new(),
-            pose_scatter_ms: 0.0,
-            robots: Vec::new(),
-        };
+        let fused = FusedCell::from_clouds(
+            cloud.clone(),
+            cloud,
+            crate::calibration::priors::CellPriors::none(),
+        );
         let body = VisibilityConfig {
             robot_body_radius_m: 0.0,
             ..VisibilityConfig::default()

@@ -304,17 +304,27 @@ pub struct FusedCell {
 impl FusedCell {
     /// No clouds, only the priors: for initialisers that do not need the clouds, without refinement.
     pub fn without_clouds(cell: &Cell, cfg: &CalibrateConfig) -> Result<Self> {
-        Ok(FusedCell {
-            reference: FusedCloud::default(),
-            other: FusedCloud::default(),
-            priors: read_priors(cell, cfg)?,
+        Ok(FusedCell::from_clouds(
+            FusedCloud::default(),
+            FusedCloud::default(),
+            read_priors(cell, cfg)?,
+        ))
+    }
+
+    /// Clouds fused elsewhere (each in its own robot's base frame) with `priors`: no hand-eye checks, no
+    /// pose scatter, the cell's robots as they are.
+    pub fn from_clouds(reference: FusedCloud, other: FusedCloud, priors: CellPriors) -> Self {
+        FusedCell {
+            reference,
+            other,
+            priors,
             fuse_ms: 0.0,
             hand_eye_checks: Vec::new(),
             hand_eye_check_ms: 0.0,
             pose_scatter: Vec::new(),
             pose_scatter_ms: 0.0,
             robots: Vec::new(),
-        })
+        }
     }
 }
 
