@@ -196,7 +196,7 @@ pub struct Calibration {
     pub inlier_rmse: Option<f64>,
     /// Overlap estimated by the trimmed ICP, a fraction (`None` when not refined).
     pub overlap: Option<f64>,
-    /// ICP met its tolerances.
+    /// ICP's finest level met its tolerances (after a second run from where it stopped, when the first ran out).
     pub converged: bool,
     /// Degeneracy analysis of the final ICP.
     pub degeneracy: Degeneracy,

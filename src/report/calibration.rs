@@ -80,7 +80,7 @@ pub struct CalibrationReport {
     pub inlier_rmse_m: Option<f64>,
     /// Overlap estimated by the trimmed ICP, 0–1.
     pub overlap: Option<f64>,
-    /// ICP met its tolerances.
+    /// ICP's finest level met its tolerances (a coarser level that ran out only handed on its start).
     pub converged: Option<bool>,
     /// A direction of the final ICP is weakly constrained.
     pub degenerate: bool,
