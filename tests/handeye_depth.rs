@@ -343,7 +343,10 @@ fn calibrate_refine_hand_eye_repairs_the_base_to_base_transform() {
         t0 > 2.0,
         "the wrong hand-eyes should spoil today's calibrate: {t0:.2} mm"
     );
-    assert!(r1 < 0.1 && t1 < 1.0, "{r1:.4}° / {t1:.3} mm");
+    // 1.5 mm: the quadric surface fit of fusion costs depthcal's own simulated cells of boxes a few tenths of
+    // a millimetre (this cell 0.0067° / 0.68 mm -> 0.047° / 1.0 mm, the demo cell 0.31 -> 0.70 mm; docs/accuracy.md,
+    // "Surface fit").
+    assert!(r1 < 0.1 && t1 < 1.5, "{r1:.4}° / {t1:.3} mm");
     assert_eq!(code, 0, "{err}");
     // The joint refinement is reported beside it, documented, and not adopted by default.
     let j = &refined["joint_hand_eye"];

@@ -134,8 +134,10 @@ impl Initializer for GlobalRegistration {
         let mut cfg = self.config.clone();
         cfg.seed = input.seed;
         cfg.ransac.constraint = input.constraint.clone();
-        // Only the global stage: one coarse ICP level is enough for a starting point.
+        // Only the global stage: one coarse ICP level is enough for a starting point, and the hold test of
+        // weak directions is for the refined answer.
         cfg.icp_levels = 1;
+        cfg.degeneracy_slide_voxels = 0.0;
         let (reference, other) = (input.reference, input.other);
         let (rs, os) = (sight(reference, cfg.sided), sight(other, cfg.sided));
         let vis = self
@@ -186,6 +188,7 @@ impl Initializer for GlobalRegistration {
             let plain = RegisterConfig {
                 seed: input.seed,
                 icp_levels: 1,
+                degeneracy_slide_voxels: 0.0,
                 ..RegisterConfig::default()
             };
             let p = register_with_prior(

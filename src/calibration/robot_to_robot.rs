@@ -5,7 +5,9 @@ use crate::calibration::consistency::{robot_consistency, ConsistencyConfig, Robo
 use crate::calibration::handeye::depth::check::{
     check_hand_eye_under_scatter, HandEyeCheck, HandEyeCheckConfig,
 };
-use crate::calibration::hypotheses::{choose, refine_and_judge, FreeSpaceTest};
+use crate::calibration::hypotheses::{
+    choose, refine_and_judge, without_robot_bodies, FreeSpaceTest,
+};
 use crate::calibration::initializer::{InitialGuess, Initializer, InitializerInput, SearchConfig};
 use crate::calibration::pose_scatter::{estimate_pose_scatter, PoseScatter, PoseScatterConfig};
 use crate::calibration::priors::CellPriors;
@@ -18,6 +20,7 @@ use crate::error::{Error, Result};
 use crate::fusion::{fuse_robot, FuseConfig, FusedCloud};
 use crate::geometry::transform::pose_error;
 use crate::registration::correspondence::MatchConfig;
+use crate::registration::pipeline::recheck_weak_directions;
 use crate::registration::quality::Degeneracy;
 use crate::registration::Trust;
 use crate::registration::{IcpConfig, IcpFactor, RansacConfig, RegisterConfig, RobustKernel};
@@ -601,6 +604,7 @@ pub fn refine_cell(
         degeneracy: Degeneracy {
             condition: f64::NAN,
             weak: Vec::new(),
+            held: Vec::new(),
         },
         priors_used: fused.priors.describe(),
         fused_points: [ref_cloud.cloud.len(), other_cloud.cloud.len()],
@@ -649,6 +653,10 @@ pub fn refine_cell(
     progress("refining (trimmed robust ICP)");
     let mut rcfg = cfg.register.clone();
     rcfg.seed = cfg.seed;
+    // The hold test of weak directions runs once, on the answer kept (below), not on every hypothesis:
+    // these only collect its candidates.
+    rcfg.degeneracy_threshold = cfg.register.degeneracy_candidate_threshold();
+    rcfg.degeneracy_slide_voxels = 0.0;
     // The initialiser's answer and its alternatives, each refined and judged at full resolution.
     let starts: Vec<nalgebra::Isometry3<f64>> = std::iter::once(out.initial.transform)
         .chain(out.initial.alternatives.iter().copied())
@@ -702,7 +710,15 @@ pub fn refine_cell(
             }
         }
     }
-    let reg = chosen.registration;
+    let mut reg = chosen.registration;
+    if reg.degeneracy.is_degenerate() {
+        let (reference, other) = without_robot_bodies(fused, &chosen.start, &cfg.visibility);
+        let hold = RegisterConfig {
+            degeneracy_slide_voxels: cfg.register.degeneracy_slide_voxels,
+            ..rcfg.clone()
+        };
+        recheck_weak_directions(&mut reg, &other, &reference, &hold)?;
+    }
     timer.lap("refine");
     out.warnings = reg.warnings.clone();
     out.transform = reg.transform;

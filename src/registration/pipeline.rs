@@ -18,7 +18,7 @@ use crate::registration::correspondence::{match_features, MatchConfig};
 use crate::registration::icp::{
     icp, icp_lazy_normals, IcpCloud, IcpConfig, IcpFactor, IcpIteration, IcpResult,
 };
-use crate::registration::quality::{covariance, degeneracy, Degeneracy};
+use crate::registration::quality::{covariance, degeneracy, motion_along, slide_gap, Degeneracy};
 use crate::registration::ransac::{ransac_sided, RansacConfig, RansacResult, SideNormals};
 use crate::registration::trust::{assess_registration, Trust, TrustConfig};
 use crate::registration::verify::{verify_candidates, HypothesisPrior, VerifyConfig};
@@ -78,6 +78,21 @@ pub struct RegisterConfig {
     /// free directions reach 2e-5 to 2.2e-4; simulated cells' weakest direction (yaw, table-dominated)
     /// 1.9e-3 to 7e-3; 3DMatch, LiDAR 0.19-0.28.
     pub degeneracy_threshold: f64,
+    /// The hold test of weak directions. Every direction whose relative strength is below
+    /// [`RegisterConfig::degeneracy_test_threshold`] is tested: ICP at the finest level, started this many
+    /// finest voxels off the answer along it (its eigenvector: the points at their RMS radius move that far),
+    /// once each way, must close at least seven eighths of the gap between the two starts (a noisy bare plane's free directions closed at most half of it). A direction
+    /// that does not is reported as unconstrained, whatever its eigenvalue; one that does is held, whatever
+    /// its eigenvalue (default 1, within ICP's capture range of [`RegisterConfig::icp_distance_voxels`]).
+    /// 0 turns the test off: then the directions below [`RegisterConfig::degeneracy_threshold`] are
+    /// reported. Measured on fused two-robot cells whose floor outweighs their objects (the yaw's relative
+    /// strength 5e-5 to 6e-4, as low as a bare plane's): ICP started 1° off in yaw came back to within
+    /// 0.002°; a low-overlap cell whose answer lay 13 mm off along its weakest translation (relative
+    /// strength 1.4e-3) had its two starts 6 mm off end 19 mm apart.
+    pub degeneracy_slide_voxels: f64,
+    /// Directions weaker than this relative strength go to the hold test (default 0.01: simulated cells'
+    /// yaw measures 1.9e-3 to 7e-3 and is tested; 3DMatch and LiDAR pairs' weakest 0.19-0.28 are not).
+    pub degeneracy_test_threshold: f64,
     /// Systematic uncertainty added to the covariance: 1-σ translation as a fraction of the finest ICP voxel
     /// (default 0.12), and that over three times the RMS radius of the matched points as rotation (radians).
     pub systematic_voxel_fraction: f64,
@@ -124,6 +139,8 @@ impl Default for RegisterConfig {
             icp_distance_voxels: 3.0,
             icp_max_source_points: 20_000,
             degeneracy_threshold: 6e-4,
+            degeneracy_slide_voxels: 1.0,
+            degeneracy_test_threshold: 0.01,
             systematic_voxel_fraction: 0.12,
             sided: false,
             ambiguity_ratio: 0.9,
@@ -136,6 +153,18 @@ impl Default for RegisterConfig {
 }
 
 impl RegisterConfig {
+    /// The relative strength below which a direction is weak before the hold test: the test's threshold
+    /// when it runs ([`RegisterConfig::degeneracy_slide_voxels`] > 0), else
+    /// [`RegisterConfig::degeneracy_threshold`].
+    pub fn degeneracy_candidate_threshold(&self) -> f64 {
+        if self.degeneracy_slide_voxels > 0.0 {
+            self.degeneracy_threshold
+                .max(self.degeneracy_test_threshold)
+        } else {
+            self.degeneracy_threshold
+        }
+    }
+
     /// Checks the ranges of every field (and of the nested configurations); the error names the field,
     /// e.g. `icp.max_iterations`. The fields the pipeline sets per level (see [`RegisterConfig::ransac`] and
     /// [`RegisterConfig::icp`]) must keep their defaults: a value given for them would be overwritten, so it
@@ -166,6 +195,8 @@ impl RegisterConfig {
         check::positive("icp_distance_voxels", self.icp_distance_voxels)?;
         check::at_least("icp_max_source_points", self.icp_max_source_points, 1)?;
         check::non_negative("degeneracy_threshold", self.degeneracy_threshold)?;
+        check::non_negative("degeneracy_slide_voxels", self.degeneracy_slide_voxels)?;
+        check::non_negative("degeneracy_test_threshold", self.degeneracy_test_threshold)?;
         check::non_negative("systematic_voxel_fraction", self.systematic_voxel_fraction)?;
         check::fraction("ambiguity_ratio", self.ambiguity_ratio)?;
         check::non_negative("ambiguity_min_deg", self.ambiguity_min_deg)?;
@@ -619,6 +650,18 @@ fn run_pipeline(
         Some(pyramid.finest.pairs),
     );
 
+    progress("checking weak directions");
+    let pyramid = Pyramid {
+        coarse_degeneracy: confirm_weak_directions(
+            pyramid.coarse_degeneracy.clone(),
+            &src,
+            &tgt,
+            &pyramid.transform,
+            pyramid.finest_voxel,
+            cfg,
+        )?,
+        ..pyramid
+    };
     let (degeneracy, covariance) = quality(&pyramid, cfg, &mut warnings);
     timer.lap("quality");
     let mut out = Registration {
@@ -1004,12 +1047,7 @@ fn icp_pyramid(
         let slev = sl.as_ref().unwrap_or(s0);
         let tlev = tl.as_ref().unwrap_or(t0);
         let sub = subsample_source(slev, cfg.icp_max_source_points);
-        let icfg = IcpConfig {
-            max_correspondence_distance: cfg.icp_distance_voxels * v,
-            translation_tolerance: 1e-3 * v,
-            sided: cfg.sided || cfg.icp.sided,
-            ..cfg.icp.clone()
-        };
+        let icfg = level_icp_config(cfg, v);
         let lazy = lazy.then(|| {
             LazyNormals::new(
                 &tlev.cloud.points,
@@ -1088,6 +1126,80 @@ fn icp_pyramid(
         coarse_degeneracy: coarse_degeneracy.expect("level 0 always runs"),
         traces,
     })
+}
+
+/// The ICP settings of a level of voxel `v` (cloud units): correspondences within
+/// [`RegisterConfig::icp_distance_voxels`] voxels, translation tolerance 1e-3 voxel, sided when either
+/// setting says so.
+fn level_icp_config(cfg: &RegisterConfig, v: f64) -> IcpConfig {
+    IcpConfig {
+        max_correspondence_distance: cfg.icp_distance_voxels * v,
+        translation_tolerance: 1e-3 * v,
+        sided: cfg.sided || cfg.icp.sided,
+        ..cfg.icp.clone()
+    }
+}
+
+/// Stage 6b. Takes the coarsest level's degeneracy, the cleaned clouds, the answer and the finest ICP
+/// voxel (cloud units); gives the degeneracy with each weak direction that the geometry holds moved to
+/// [`Degeneracy::held`]. For each weak direction, ICP at the finest level (where the answer is settled)
+/// starts [`RegisterConfig::degeneracy_slide_voxels`] voxels off the answer along it, once each way
+/// ([`motion_along`]); the direction is held when the two ends lie less than a quarter of the step apart along it
+/// ([`slide_gap`]): the geometry pulled both back. Along an unconstrained direction (a bare plane's
+/// in-plane motions, a corridor's length) nothing pulls and the ends stay about two steps apart. A run
+/// that fails counts as not held. Runs only when a direction is weak.
+fn confirm_weak_directions(
+    deg: Degeneracy,
+    src: &PointCloud,
+    tgt: &PointCloud,
+    answer: &Isometry3<f64>,
+    voxel: f64,
+    cfg: &RegisterConfig,
+) -> Result<Degeneracy> {
+    if deg.weak.is_empty() || cfg.degeneracy_slide_voxels <= 0.0 {
+        return Ok(deg);
+    }
+    let (s_level, t0) = icp_level_clouds(src, tgt, voxel, cfg, false)?;
+    let sub = subsample_source(&s_level, cfg.icp_max_source_points);
+    let icfg = level_icp_config(cfg, voxel);
+    let source = IcpCloud {
+        points: &sub.points,
+        normals: sub.normals.as_deref(),
+        covariances: sub.covariances.as_deref(),
+    };
+    let step = cfg.degeneracy_slide_voxels * voxel;
+    let mut out = Degeneracy {
+        weak: Vec::new(),
+        ..deg.clone()
+    };
+    for w in deg.weak {
+        let delta = step;
+        let end = |sign: f64| {
+            let start = motion_along(&w, sign * delta) * answer;
+            icp(&source, &t0.icp_cloud(), &t0.index, &start, &icfg).map(|r| r.transform)
+        };
+        let (plus, minus) = rayon::join(|| end(1.0), || end(-1.0));
+        let gap = match (plus, minus) {
+            (Ok(a), Ok(b)) => slide_gap(&w, &a, &b),
+            _ => f64::INFINITY,
+        };
+        let held = gap < 0.25 * delta;
+        log::info!(
+            "weak direction {} ({:.2}, {:.2}, {:.2}), relative strength {:.1e}: started ±{delta:.4} off, the ends lie {gap:.5} apart: {}",
+            w.kind,
+            w.axis[0],
+            w.axis[1],
+            w.axis[2],
+            w.relative_strength,
+            if held { "held" } else { "free" }
+        );
+        if held {
+            out.held.push(w);
+        } else {
+            out.weak.push(w);
+        }
+    }
+    Ok(out)
 }
 
 /// The source and target clouds of an ICP level finer than the global one (`voxel`, cloud units). The
@@ -1169,7 +1281,12 @@ fn coarse_level_degeneracy(r: &IcpResult, s_sub: &[[f32; 3]], cfg: &RegisterConf
         .map(|p| (r.transform * nalgebra::Point3::from(to_v64(p))).coords)
         .collect();
     let (center, length) = centre_and_radius(&moved);
-    degeneracy(&r.information, &center, length, cfg.degeneracy_threshold)
+    degeneracy(
+        &r.information,
+        &center,
+        length,
+        cfg.degeneracy_candidate_threshold(),
+    )
 }
 
 /// Stage 7. Takes the ICP pyramid's result; gives the degeneracy (judged at the coarsest level) and the
@@ -1189,11 +1306,7 @@ fn quality(
         .collect();
     let (_, length) = centre_and_radius(&moved);
     let deg = p.coarse_degeneracy.clone();
-    if deg.is_degenerate() {
-        let msg = format!(
-            "the geometry leaves some motion unconstrained: {} (the result may slide along it)",
-            deg.describe()
-        );
+    if let Some(msg) = degeneracy_warning(&deg) {
         log::warn!("{msg}");
         warnings.push(msg);
     }
@@ -1212,6 +1325,50 @@ fn quality(
         cov[(k + 3, k + 3)] += sys_t * sys_t;
     }
     (deg, cov)
+}
+
+/// The warning a degenerate result carries (`None` when no direction is unconstrained).
+fn degeneracy_warning(deg: &Degeneracy) -> Option<String> {
+    deg.is_degenerate().then(|| {
+        format!(
+            "{DEGENERACY_WARNING}: {} (the result may slide along it)",
+            deg.describe()
+        )
+    })
+}
+
+/// How [`degeneracy_warning`] begins.
+const DEGENERACY_WARNING: &str = "the geometry leaves some motion unconstrained";
+
+/// Runs the hold test of stage 6b ([`RegisterConfig::degeneracy_slide_voxels`]) on a registration of
+/// `source` onto `target` made with `cfg` but without it (its weak directions judged by their eigenvalues
+/// alone), then updates its degeneracy, its warnings and its trust verdict. For callers that refine many
+/// hypotheses and need the test only for the one they keep (`calibrate`).
+pub fn recheck_weak_directions(
+    reg: &mut Registration,
+    source: &PointCloud,
+    target: &PointCloud,
+    cfg: &RegisterConfig,
+) -> Result<()> {
+    if !reg.degeneracy.is_degenerate() {
+        return Ok(());
+    }
+    let mut src = source.clone();
+    let mut tgt = target.clone();
+    src.drop_non_finite();
+    tgt.drop_non_finite();
+    reg.degeneracy = confirm_weak_directions(
+        reg.degeneracy.clone(),
+        &src,
+        &tgt,
+        &reg.transform,
+        reg.finest_voxel,
+        cfg,
+    )?;
+    reg.warnings.retain(|w| !w.starts_with(DEGENERACY_WARNING));
+    reg.warnings.extend(degeneracy_warning(&reg.degeneracy));
+    reg.trust = assess_registration(reg, &cfg.trust, "");
+    Ok(())
 }
 
 /// The first of the fully verified candidates (best first) that lies far from the best and scores almost
@@ -1409,6 +1566,69 @@ mod tests {
                 });
                 by_count.truncate(max.max(1));
                 assert_eq!(plain, by_count);
+            }
+        }
+    }
+
+    /// A floor sampled every 2 cm, 2 m square, plus (with `boxes`) three boxes standing on it, with a little
+    /// noise.
+    fn floor_scene(boxes: bool, seed: u64) -> PointCloud {
+        let mut rng = crate::geometry::Rng::new(seed);
+        let mut pts = Vec::new();
+        let mut push = |p: [f64; 3], rng: &mut crate::geometry::Rng| {
+            pts.push([
+                (p[0] + 0.0005 * rng.normal()) as f32,
+                (p[1] + 0.0005 * rng.normal()) as f32,
+                (p[2] + 0.0005 * rng.normal()) as f32,
+            ]);
+        };
+        for i in 0..100 {
+            for j in 0..100 {
+                push([i as f64 * 0.02, j as f64 * 0.02, 0.0], &mut rng);
+            }
+        }
+        if boxes {
+            // Boxes 20 cm wide, 30 cm tall, at different yaw: their sides hold the yaw.
+            for (cx, cy, yaw) in [(0.5, 0.5, 0.0f64), (1.4, 0.7, 0.5), (0.9, 1.5, 1.0)] {
+                let (c, s) = (yaw.cos(), yaw.sin());
+                for k in 0..15 {
+                    for m in 0..10 {
+                        let (a, z) = (m as f64 * 0.02 - 0.1, k as f64 * 0.02);
+                        for (u, v) in [(a, -0.1), (a, 0.1), (-0.1, a), (0.1, a)] {
+                            push([cx + c * u - s * v, cy + s * u + c * v, z], &mut rng);
+                        }
+                    }
+                }
+            }
+        }
+        PointCloud::from_points(pts)
+    }
+
+    /// The hold test keeps a floor's yaw when boxes stand on it and reports it on the bare floor: every
+    /// direction weaker than 0.5 is tested, so the verdict is the test's, not the eigenvalue's.
+    #[test]
+    fn the_hold_test_tells_a_held_direction_from_a_free_one() {
+        let truth = Isometry3::new(Vector3::new(0.03, -0.02, 0.01), Vector3::z() * 0.02);
+        let start = Isometry3::new(Vector3::new(0.035, -0.015, 0.01), Vector3::z() * 0.025);
+        let cfg = RegisterConfig {
+            degeneracy_test_threshold: 0.5,
+            ..RegisterConfig::default()
+        };
+        for boxes in [true, false] {
+            let target = floor_scene(boxes, 1);
+            let source = floor_scene(boxes, 2).transformed(&truth.inverse());
+            let r = register(&source, &target, Some(&start), &cfg).unwrap();
+            let free: Vec<_> = r.degeneracy.weak.iter().map(|w| w.kind).collect();
+            if boxes {
+                assert!(!r.degeneracy.is_degenerate(), "{:?}", r.degeneracy);
+                assert!(!r.degeneracy.held.is_empty(), "{:?}", r.degeneracy);
+                let (deg, m) = crate::geometry::transform::pose_error(&r.transform, &truth);
+                assert!(deg < 0.05 && m < 2e-3, "{deg}° {m} m");
+            } else {
+                // The floor's own motions: two translations in it and the rotation about its normal.
+                assert_eq!(free.len(), 3, "{:?}", r.degeneracy);
+                assert_eq!(free.iter().filter(|k| **k == "translation").count(), 2);
+                assert!(!r.trust.trusted);
             }
         }
     }

@@ -1,10 +1,12 @@
 //! Quality of an estimate: covariance from the information matrix, and degeneracy detection.
 
-use nalgebra::{Matrix3, Matrix6, SymmetricEigen, Vector3};
+use nalgebra::{
+    Isometry3, Matrix3, Matrix6, SymmetricEigen, Translation3, UnitQuaternion, Vector3,
+};
 use serde::Serialize;
 
 /// One poorly constrained direction of the estimate.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct WeakDirection {
     /// `"rotation"` or `"translation"` (the dominant part of the eigenvector).
     pub kind: &'static str,
@@ -12,15 +14,32 @@ pub struct WeakDirection {
     pub axis: [f64; 3],
     /// Eigenvalue relative to the largest (0 = unconstrained).
     pub relative_strength: f64,
+    /// The whole motion along it, about [`WeakDirection::center`]: rotation (radians) and translation of
+    /// the centre (cloud units) per cloud unit that the points at the RMS radius move (the unit
+    /// eigenvector with its rotation part divided by that radius).
+    #[serde(skip)]
+    pub motion_per_unit: [f64; 6],
+    /// The centre the motion is about (target frame).
+    #[serde(skip)]
+    pub center: [f64; 3],
+    /// The RMS radius of the points about the centre (cloud units).
+    #[serde(skip)]
+    pub radius: f64,
 }
 
 /// Degeneracy analysis of an information matrix.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Degeneracy {
     /// Smallest over largest eigenvalue of the normalised information matrix.
     pub condition: f64,
-    /// Directions whose relative strength is below the threshold.
+    /// Directions whose relative strength is below the threshold and along which the result can slide:
+    /// ICP started off along them did not come back (see [`slide_gap`]). Without that test, every direction
+    /// below the threshold.
     pub weak: Vec<WeakDirection>,
+    /// Directions below the threshold that the geometry holds all the same: ICP started off along them, once
+    /// each way, came back (a floor that outweighs the objects standing on it: the yaw is weak next to the
+    /// floor's tilt and height, not unconstrained).
+    pub held: Vec<WeakDirection>,
 }
 
 impl Degeneracy {
@@ -96,13 +115,44 @@ pub fn degeneracy(
                 kind,
                 axis: [axis.x, axis.y, axis.z],
                 relative_strength: rel.max(0.0),
+                motion_per_unit: [v[0] / l, v[1] / l, v[2] / l, v[3], v[4], v[5]],
+                center: [center.x, center.y, center.z],
+                radius: l,
             });
         }
     }
     Degeneracy {
         condition: (min / max).max(0.0),
         weak,
+        held: Vec::new(),
     }
+}
+
+/// The rigid motion along `w` that moves the points at its RMS radius by about `amount` (cloud units):
+/// the eigenvector's rotation about [`WeakDirection::center`] and translation of the centre, together.
+pub fn motion_along(w: &WeakDirection, amount: f64) -> Isometry3<f64> {
+    let m = w.motion_per_unit;
+    let c = Vector3::from(w.center);
+    let r = UnitQuaternion::from_scaled_axis(Vector3::new(m[0], m[1], m[2]) * amount);
+    let v = Vector3::new(m[3], m[4], m[5]) * amount;
+    // p ↦ R (p − c) + c + v
+    Isometry3::from_parts(Translation3::from(c - r * c + v), r)
+}
+
+/// How far apart along `w` two results `a` and `b` (target frame) lie, in the units of [`motion_along`]:
+/// the relative motion `a · b⁻¹` about the centre, its rotation scaled by the RMS radius, projected on the
+/// unit eigenvector. Two ICP runs started `±δ` along a direction the geometry holds end with a gap near 0;
+/// along a free direction they stay about `2δ` apart.
+pub fn slide_gap(w: &WeakDirection, a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
+    let m = w.motion_per_unit;
+    let c = Vector3::from(w.center);
+    let d = a * b.inverse();
+    let omega = d.rotation.scaled_axis() * w.radius;
+    let v = (d * nalgebra::Point3::from(c)).coords - c;
+    // The unit eigenvector: [m_rot · radius, m_trans].
+    let e_rot = Vector3::new(m[0], m[1], m[2]) * w.radius;
+    let e_tr = Vector3::new(m[3], m[4], m[5]);
+    (omega.dot(&e_rot) + v.dot(&e_tr)).abs()
 }
 
 /// Covariance `σ² H⁻¹` of an estimate with information `h` and residual variance `sigma2`
@@ -125,7 +175,7 @@ pub fn covariance(h: &Matrix6<f64>, sigma2: f64) -> Matrix6<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::Vector6;
+    use nalgebra::{Point3, Vector6};
 
     fn info_of(points: &[(Vector3<f64>, Vector3<f64>)]) -> Matrix6<f64> {
         let mut h = Matrix6::zeros();
@@ -159,5 +209,39 @@ mod tests {
         assert_eq!(kinds.iter().filter(|k| **k == "translation").count(), 2);
         let d = degeneracy(&info_of(&boxy), &Vector3::new(0.3, 0.3, 0.3), 0.6, 1e-3);
         assert!(!d.is_degenerate(), "{d:?}");
+    }
+
+    #[test]
+    fn a_step_along_a_weak_direction_is_measured_along_it_only() {
+        // A plane's three free directions (two translations in it, the rotation about its normal), about a
+        // centre away from the origin.
+        let mut plane = Vec::new();
+        for i in 0..20 {
+            for j in 0..20 {
+                let (a, b) = (i as f64 * 0.05, j as f64 * 0.05);
+                plane.push((Vector3::new(a + 3.0, b - 7.0, 10.0), Vector3::z()));
+            }
+        }
+        let d = degeneracy(&info_of(&plane), &Vector3::new(3.5, -6.5, 10.0), 0.3, 1e-3);
+        assert_eq!(d.weak.len(), 3, "{d:?}");
+        let start = Isometry3::new(Vector3::new(0.2, -0.1, 0.05), Vector3::new(0.1, 0.2, -0.3));
+        for w in &d.weak {
+            for v in &d.weak {
+                let moved = motion_along(v, 0.02) * start;
+                let gap = slide_gap(w, &moved, &start);
+                let expect = if std::ptr::eq(w, v) { 0.02 } else { 0.0 };
+                assert!((gap - expect).abs() < 1e-6, "{gap} != {expect}");
+            }
+            // A rotation moves the points at the RMS radius by the amount: 0.02 / 0.3 rad.
+            let m = motion_along(w, 0.02);
+            if w.kind == "rotation" {
+                assert!((m.rotation.angle() - 0.02 / 0.3).abs() < 1e-9);
+                // About the centre: the centre stays.
+                let c = Point3::new(3.5, -6.5, 10.0);
+                assert!(((m * c) - c).norm() < 1e-9);
+            } else {
+                assert!((m.translation.vector.norm() - 0.02).abs() < 1e-9);
+            }
+        }
     }
 }

@@ -121,7 +121,7 @@ pub fn assess_registration(r: &Registration, cfg: &TrustConfig, unit: &str) -> T
     if r.degeneracy.is_degenerate() {
         t.fail(
             format!(
-                "the geometry leaves motion unconstrained ({}): the result may slide along it",
+                "the geometry leaves motion unconstrained ({}): ICP started off along it stayed off, so the result may slide along it",
                 r.degeneracy.describe()
             ),
             "capture views with more 3-D structure in the shared part (objects of different orientations, not a bare plane)",
