@@ -717,7 +717,7 @@ pub fn refine_cell(
             degeneracy_slide_voxels: cfg.register.degeneracy_slide_voxels,
             ..rcfg.clone()
         };
-        recheck_weak_directions(&mut reg, &other, &reference, &hold)?;
+        recheck_weak_directions(&mut reg, other, reference, &hold)?;
     }
     timer.lap("refine");
     out.warnings = reg.warnings.clone();

@@ -1168,11 +1168,13 @@ fn confirm_weak_directions(
         covariances: sub.covariances.as_deref(),
     };
     let step = cfg.degeneracy_slide_voxels * voxel;
-    let mut out = Degeneracy {
-        weak: Vec::new(),
-        ..deg.clone()
-    };
-    for w in deg.weak {
+    let Degeneracy {
+        condition,
+        weak,
+        mut held,
+    } = deg;
+    let mut free = Vec::new();
+    for w in weak {
         let delta = step;
         let end = |sign: f64| {
             let start = motion_along(&w, sign * delta) * answer;
@@ -1183,7 +1185,7 @@ fn confirm_weak_directions(
             (Ok(a), Ok(b)) => slide_gap(&w, &a, &b),
             _ => f64::INFINITY,
         };
-        let held = gap < 0.25 * delta;
+        let holds = gap < 0.25 * delta;
         log::info!(
             "weak direction {} ({:.2}, {:.2}, {:.2}), relative strength {:.1e}: started ±{delta:.4} off, the ends lie {gap:.5} apart: {}",
             w.kind,
@@ -1191,15 +1193,19 @@ fn confirm_weak_directions(
             w.axis[1],
             w.axis[2],
             w.relative_strength,
-            if held { "held" } else { "free" }
+            if holds { "held" } else { "free" }
         );
-        if held {
-            out.held.push(w);
+        if holds {
+            held.push(w);
         } else {
-            out.weak.push(w);
+            free.push(w);
         }
     }
-    Ok(out)
+    Ok(Degeneracy {
+        condition,
+        weak: free,
+        held,
+    })
 }
 
 /// The source and target clouds of an ICP level finer than the global one (`voxel`, cloud units). The
@@ -1346,15 +1352,13 @@ const DEGENERACY_WARNING: &str = "the geometry leaves some motion unconstrained"
 /// hypotheses and need the test only for the one they keep (`calibrate`).
 pub fn recheck_weak_directions(
     reg: &mut Registration,
-    source: &PointCloud,
-    target: &PointCloud,
+    mut src: PointCloud,
+    mut tgt: PointCloud,
     cfg: &RegisterConfig,
 ) -> Result<()> {
     if !reg.degeneracy.is_degenerate() {
         return Ok(());
     }
-    let mut src = source.clone();
-    let mut tgt = target.clone();
     src.drop_non_finite();
     tgt.drop_non_finite();
     reg.degeneracy = confirm_weak_directions(
