@@ -18,7 +18,10 @@ use crate::registration::correspondence::{match_features, MatchConfig};
 use crate::registration::icp::{
     icp, icp_lazy_normals, IcpCloud, IcpConfig, IcpFactor, IcpIteration, IcpResult,
 };
-use crate::registration::quality::{covariance, degeneracy, motion_along, slide_gap, Degeneracy};
+use crate::registration::quality::{
+    covariance, covariance_envelope, degeneracy, motion_along, sandwich_covariance, slide_gap,
+    Degeneracy,
+};
 use crate::registration::ransac::{ransac_sided, RansacConfig, RansacResult, SideNormals};
 use crate::registration::trust::{assess_registration, Trust, TrustConfig};
 use crate::registration::verify::{verify_candidates, HypothesisPrior, VerifyConfig};
@@ -311,8 +314,10 @@ pub struct Registration {
     pub iterations: usize,
     /// Information matrix `JᵀWJ` (order ω then v, about the target origin).
     pub information: Matrix6<f64>,
-    /// Covariance of `[ω (rad), v (cloud units)]` for a left increment about the target origin:
-    /// `σ²(JᵀWJ)⁻¹` plus the systematic floor of [`RegisterConfig::systematic_voxel_fraction`].
+    /// Covariance of `[ω (rad), v (cloud units)]` for a left increment about the target origin: the
+    /// envelope of `σ²(JᵀWJ)⁻¹` and the cluster-robust covariance with the re-associated curvature
+    /// ([`crate::registration::quality::sandwich_covariance`]), plus the systematic floor of
+    /// [`RegisterConfig::systematic_voxel_fraction`].
     pub covariance: Matrix6<f64>,
     /// Degeneracy analysis.
     pub degeneracy: Degeneracy,
@@ -989,6 +994,9 @@ struct Pyramid {
     iterations: usize,
     /// The finest level's ICP result.
     finest: IcpResult,
+    /// The finest level's information with re-association
+    /// ([`crate::registration::icp::reassociated_information`], a step of one finest voxel).
+    reassociated: Option<Matrix6<f64>>,
     /// The finest level's (subsampled) source points.
     finest_source: Vec<[f32; 3]>,
     /// [`surface_agreement`] at the finest level.
@@ -1000,6 +1008,10 @@ struct Pyramid {
     /// One trace per level run.
     traces: Vec<IcpLevelTrace>,
 }
+
+/// What an ICP level leaves for the pyramid's result: its ICP result, its source points, its surface
+/// agreement and (the last level only) its re-associated information.
+type LevelOutcome = (IcpResult, Vec<[f32; 3]>, Agreement, Option<Matrix6<f64>>);
 
 /// Stage 6. Takes the cleaned clouds, the global-voxel levels, the starting transform and the global
 /// voxel and spacings (cloud units); runs ICP at voxel, voxel/2, ... ([`RegisterConfig::icp_levels`]),
@@ -1021,7 +1033,7 @@ fn icp_pyramid(
     let mut t = *initial;
     let mut converged = false;
     let mut iterations = 0;
-    let mut last: Option<(IcpResult, Vec<[f32; 3]>, Agreement)> = None;
+    let mut last: Option<LevelOutcome> = None;
     let mut finest_voxel = voxel;
     let mut coarse_degeneracy = None;
     let mut traces = Vec::new();
@@ -1093,6 +1105,21 @@ fn icp_pyramid(
             prepare_ms: if level == 0 { 0.0 } else { prep_ms },
             iterations: r.history.clone(),
         });
+        let reassociated = if last_level {
+            crate::registration::icp::reassociated_information(
+                &source_cloud,
+                &tlev.icp_cloud(),
+                lazy.as_ref(),
+                &tlev.index,
+                &r.transform,
+                &icfg,
+                v,
+            )
+            .map_err(|e| log::warn!("re-associated information: {e}"))
+            .ok()
+        } else {
+            None
+        };
         t = r.transform;
         // What the answer is judged by is the finest level's convergence: a coarser level that runs out
         // of its budget only hands the next one its start (a pose-noise cell's middle level crept for
@@ -1108,18 +1135,19 @@ fn icp_pyramid(
             0.5 * v,
             cfg.sided,
         );
-        last = Some((r, sub.points, agreement));
+        last = Some((r, sub.points, agreement, reassociated));
         finest_voxel = v;
         if last_level {
             break;
         }
     }
-    let (r, s_sub, agreement) = last.expect("at least one ICP level");
+    let (r, s_sub, agreement, reassociated) = last.expect("at least one ICP level");
     Ok(Pyramid {
         transform: t,
         converged,
         iterations,
         finest: r,
+        reassociated,
         finest_source: s_sub,
         surface_agreement: agreement,
         finest_voxel,
@@ -1296,8 +1324,9 @@ fn coarse_level_degeneracy(r: &IcpResult, s_sub: &[[f32; 3]], cfg: &RegisterConf
 }
 
 /// Stage 7. Takes the ICP pyramid's result; gives the degeneracy (judged at the coarsest level) and the
-/// covariance of `[ω (rad), v (cloud units)]`: `σ²(JᵀWJ)⁻¹` of the finest level plus the systematic
-/// floor of [`RegisterConfig::systematic_voxel_fraction`]. Adds a warning for a degenerate geometry and
+/// covariance of `[ω (rad), v (cloud units)]`: the envelope of `σ²(JᵀWJ)⁻¹` of the finest level and its
+/// cluster-robust covariance ([`sandwich_covariance`] with the re-associated curvature), plus the
+/// systematic floor of [`RegisterConfig::systematic_voxel_fraction`]. Adds a warning for a degenerate geometry and
 /// for ICP that did not converge.
 fn quality(
     p: &Pyramid,
@@ -1310,7 +1339,7 @@ fn quality(
         .map(|q| p.transform * nalgebra::Point3::from(to_v64(q)))
         .map(|q| q.coords)
         .collect();
-    let (_, length) = centre_and_radius(&moved);
+    let (centre, length) = centre_and_radius(&moved);
     let deg = p.coarse_degeneracy.clone();
     if let Some(msg) = degeneracy_warning(&deg) {
         log::warn!("{msg}");
@@ -1324,6 +1353,13 @@ fn quality(
     // out: neighbouring residuals are correlated and the surfaces are represented at the finest voxel.
     let r = &p.finest;
     let mut cov = covariance(&r.information, r.residual_sigma * r.residual_sigma);
+    // Where residuals are correlated within surface patches, or sliding to other correspondences costs
+    // less than the fixed pairs predict, the cluster-robust covariance with the re-associated curvature
+    // is the larger: the reported one is at least each of the two.
+    if let Some(k) = &p.reassociated {
+        let robust = sandwich_covariance(k, &r.block_scores, r.blocks, &centre, length);
+        cov = covariance_envelope(&cov, &robust);
+    }
     let sys_t = cfg.systematic_voxel_fraction * p.finest_voxel;
     let sys_r = sys_t / (3.0 * length).max(p.finest_voxel);
     for k in 0..3 {

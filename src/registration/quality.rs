@@ -172,6 +172,70 @@ pub fn covariance(h: &Matrix6<f64>, sigma2: f64) -> Matrix6<f64> {
     inv * sigma2
 }
 
+/// The map `ξ = B s` from scaled coordinates about `center` (rotations times `length`, then translations of
+/// the centre, all in cloud units) to increments `ξ = [ω, v]` about the origin.
+fn scaled_about(center: &Vector3<f64>, length: f64) -> Matrix6<f64> {
+    let mut a = Matrix6::identity();
+    a.fixed_view_mut::<3, 3>(3, 0)
+        .copy_from(&center.cross_matrix());
+    let l = length.max(1e-12);
+    let mut s = Matrix6::identity();
+    for k in 0..3 {
+        s[(k, k)] = 1.0 / l;
+    }
+    a * s
+}
+
+/// Relative floor of the curvature's eigenvalues in [`sandwich_covariance`].
+const CURVATURE_FLOOR: f64 = 1e-6;
+
+/// The cluster-robust ("sandwich") covariance `K⁻¹ M K⁻¹ · G/(G−1)` of an M-estimate with increments
+/// `[ω, v]` about the origin: `curvature` `K` is the derivative of its estimating equation `Σ w J r = 0`
+/// (with correspondences found anew, see [`crate::registration::icp::reassociated_information`]),
+/// `scores` `M` the sum over `clusters` spatial blocks `G` of each block's `Σ w J r` outer product
+/// ([`crate::registration::icp::IcpResult::block_scores`]). Inverted in coordinates scaled by `length`
+/// about `center` (the matched points' centroid and RMS radius, cloud units), where every eigenvalue of
+/// `K` below 1e-6 of the largest (or negative: the answer is no minimum along it) is raised to that floor,
+/// giving such a direction a large, finite variance.
+pub fn sandwich_covariance(
+    curvature: &Matrix6<f64>,
+    scores: &Matrix6<f64>,
+    clusters: usize,
+    center: &Vector3<f64>,
+    length: f64,
+) -> Matrix6<f64> {
+    let b = scaled_about(center, length);
+    let k = b.transpose() * curvature * b;
+    let eig = SymmetricEigen::new(0.5 * (k + k.transpose()));
+    let floor = CURVATURE_FLOOR * eig.eigenvalues.max().max(1e-300);
+    let ki = eig.eigenvectors
+        * Matrix6::from_diagonal(&eig.eigenvalues.map(|l| 1.0 / l.max(floor)))
+        * eig.eigenvectors.transpose();
+    let g = clusters as f64;
+    let small_sample = g / (g - 1.0).max(1.0);
+    let c = ki * (b.transpose() * scores * b) * ki * small_sample;
+    b * c * b.transpose()
+}
+
+/// The smallest covariance (in the ordering of positive semi-definite matrices, found by whitening with
+/// `a`) that is at least `a` and at least `b` along every direction: each eigenvalue of `a^-½ b a^-½`
+/// below 1 is raised to 1. `a` must be positive definite; otherwise `a + b` is returned.
+pub fn covariance_envelope(a: &Matrix6<f64>, b: &Matrix6<f64>) -> Matrix6<f64> {
+    let Some(ch) = a.cholesky() else {
+        return a + b;
+    };
+    let l = ch.l();
+    let Some(li) = l.try_inverse() else {
+        return a + b;
+    };
+    let w = li * b * li.transpose();
+    let eig = SymmetricEigen::new(0.5 * (w + w.transpose()));
+    let raised = eig.eigenvectors
+        * Matrix6::from_diagonal(&eig.eigenvalues.map(|x| x.max(1.0)))
+        * eig.eigenvectors.transpose();
+    l * raised * l.transpose()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -243,5 +307,59 @@ mod tests {
                 assert!((m.translation.vector.norm() - 0.02).abs() < 1e-9);
             }
         }
+    }
+
+    #[test]
+    fn envelope_is_at_least_each_covariance() {
+        let a = Matrix6::from_diagonal(&Vector6::new(1.0, 1.0, 1.0, 4.0, 4.0, 4.0));
+        let mut b = Matrix6::from_diagonal(&Vector6::new(9.0, 0.25, 1.0, 1.0, 16.0, 0.0));
+        b[(0, 3)] = 0.5;
+        b[(3, 0)] = 0.5;
+        let e = covariance_envelope(&a, &b);
+        // e − a and e − b are positive semi-definite.
+        for d in [e - a, e - b] {
+            let min = SymmetricEigen::new(d).eigenvalues.min();
+            assert!(min > -1e-9, "{min}");
+        }
+        // Diagonal inputs of one axis each: the larger of the two.
+        let b2 = Matrix6::from_diagonal(&Vector6::new(9.0, 0.25, 1.0, 1.0, 16.0, 0.0));
+        let e2 = covariance_envelope(&a, &b2);
+        let want = [9.0, 1.0, 1.0, 4.0, 16.0, 4.0];
+        for k in 0..6 {
+            assert!((e2[(k, k)] - want[k]).abs() < 1e-9, "{k}: {}", e2[(k, k)]);
+        }
+    }
+
+    #[test]
+    fn sandwich_of_independent_scores_is_the_usual_covariance() {
+        // Independent residuals (σ² = 0.01) in many clusters: M = σ² H and K = H give σ² H⁻¹, here for
+        // points well away from the origin (the inversion runs about the centre).
+        let c = Vector3::new(3.0, -2.0, 1.0);
+        let pts: Vec<(Vector3<f64>, Vector3<f64>)> = (0..60)
+            .map(|k| {
+                let t = k as f64 * 0.37;
+                let p = c + Vector3::new(t.sin(), (1.3 * t).cos(), (0.7 * t).sin());
+                let n = Vector3::new(t.cos(), (2.1 * t).sin(), 1.0 + (0.3 * t).cos()).normalize();
+                (p, n)
+            })
+            .collect();
+        let h = info_of(&pts);
+        let got = sandwich_covariance(&h, &(h * 0.01), 1_000_000, &c, 1.0);
+        let want = covariance(&h, 0.01);
+        assert!((got - want).norm() < 1e-5 * want.norm(), "{got}\n{want}");
+        // Few clusters: the small-sample factor G/(G−1).
+        let got = sandwich_covariance(&h, &(h * 0.01), 5, &c, 1.0);
+        assert!((got - want * 1.25).norm() < 1e-6 * want.norm());
+    }
+
+    #[test]
+    fn sandwich_gives_a_direction_without_curvature_a_large_variance() {
+        // Curvature only in five directions, scores in all six: the sixth gets the floor's variance.
+        let c = Vector3::zeros();
+        let k = Matrix6::from_diagonal(&Vector6::new(1.0, 1.0, 1.0, 1.0, 1.0, 0.0));
+        let m = Matrix6::identity() * 1e-6;
+        let cov = sandwich_covariance(&k, &m, 1_000_000, &c, 1.0);
+        assert!((cov[(0, 0)] - 1e-6).abs() < 1e-9);
+        assert!(cov[(5, 5)] > 1e5, "{}", cov[(5, 5)]);
     }
 }
