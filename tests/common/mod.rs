@@ -48,12 +48,17 @@ pub fn perturbed_errors(
     max_t: f64,
     cfg: &RegisterConfig,
 ) -> (f64, f64, Registration) {
-    let mut rng = Rng::new(seed);
-    let p = random_isometry(&mut rng, max_deg.to_radians(), max_t);
+    let p = perturbation(seed, max_deg, max_t);
     let moved = source.transformed(&p);
     let reg = register(&moved, target, None, cfg).unwrap();
     let (r, t) = pose_error(&(reg.transform * p), truth);
     (r, t, reg)
+}
+
+/// The seeded random transform `P` of [`perturbed_errors`]: the registration of `source` moved by it
+/// estimates `truth · P⁻¹`.
+pub fn perturbation(seed: u64, max_deg: f64, max_t: f64) -> Isometry3<f64> {
+    random_isometry(&mut Rng::new(seed), max_deg.to_radians(), max_t)
 }
 
 #[allow(unused_imports)]
