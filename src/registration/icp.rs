@@ -617,6 +617,24 @@ impl<'a> Problem<'a> {
             .max(1e-12)
     }
 
+    /// Sorts `pairs` by distance (ties by source index: the same order at any thread count) and gives how
+    /// many of the nearest the trimming keeps, with the sorted squared distances.
+    fn sort_and_trim(&self, pairs: &mut [Pair]) -> (usize, Vec<f32>) {
+        pairs.par_sort_unstable_by(|a, b| a.d2.total_cmp(&b.d2).then(a.i.cmp(&b.i)));
+        let d2s: Vec<f32> = pairs.iter().map(|p| p.d2).collect();
+        (trimmed_count(&d2s, self.source.len(), self.cfg.trim), d2s)
+    }
+
+    /// The rows of what is reported ([`Problem::reported_system`]): point-to-plane whenever the target has
+    /// normals, else the factor's own.
+    fn reported_rows(&self, kept: &[Pair], t: &Isometry3<f64>) -> Vec<PairRows> {
+        if self.normals.is_some() {
+            kept.par_iter().map(|p| self.plane_rows(p)).collect()
+        } else {
+            self.rows(kept, t)
+        }
+    }
+
     /// What is reported (information, residual σ, weighted SSE): the point-to-plane system whenever the
     /// target has normals, so that covariance and degeneracy mean the same whatever the factor; else the
     /// factor's own system `(h, row_sigma, sse)`.
@@ -643,12 +661,7 @@ impl Problem<'_> {
         if kept.is_empty() {
             return (Matrix6::zeros(), 0);
         }
-        let rows: Vec<PairRows> =
-            if self.cfg.factor != IcpFactor::PointToPlane && self.normals.is_some() {
-                kept.par_iter().map(|p| self.plane_rows(p)).collect()
-            } else {
-                self.rows(kept, t)
-            };
+        let rows = self.reported_rows(kept, t);
         let (ps, _) = residual_scales(&rows);
         let c = self.kernel_scale(ps);
         let moved: Vec<[f32; 3]> = kept.iter().map(|p| p.pw).collect();
@@ -689,9 +702,7 @@ pub fn reassociated_information(
     let problem = Problem::new(source, target, lazy, target_index, cfg)?;
     let kept_at = |pose: &Isometry3<f64>| {
         let mut pairs = problem.correspondences(pose);
-        pairs.par_sort_unstable_by(|a, b| a.d2.total_cmp(&b.d2).then(a.i.cmp(&b.i)));
-        let d2s: Vec<f32> = pairs.iter().map(|p| p.d2).collect();
-        let keep = trimmed_count(&d2s, problem.source.len(), cfg.trim);
+        let (keep, _) = problem.sort_and_trim(&mut pairs);
         pairs.truncate(keep);
         pairs
     };
@@ -701,14 +712,7 @@ pub fn reassociated_information(
             "too few pairs for the re-associated information".into(),
         ));
     }
-    let reported = |kept: &[Pair], pose: &Isometry3<f64>| -> Vec<PairRows> {
-        if problem.normals.is_some() {
-            kept.par_iter().map(|p| problem.plane_rows(p)).collect()
-        } else {
-            problem.rows(kept, pose)
-        }
-    };
-    let c = problem.kernel_scale(residual_scales(&reported(&kept, t)).0);
+    let c = problem.kernel_scale(residual_scales(&problem.reported_rows(&kept, t)).0);
     // Within half the kernel's scale the weights stay near their values at `t`: a longer step would
     // measure the kernel's bounded influence (and the trimming), not the cost's curvature.
     let step = step.min(0.5 * c).max(1e-12);
@@ -726,7 +730,7 @@ pub fn reassociated_information(
     }
     let gradient = |pose: &Isometry3<f64>| -> Vector6<f64> {
         let kept = kept_at(pose);
-        normal_equations(&reported(&kept, pose), cfg.kernel, c).1
+        normal_equations(&problem.reported_rows(&kept, pose), cfg.kernel, c).1
     };
     // K[:, k] = Bᵀ (g(+step b_k) − g(−step b_k)) / 2 step: the derivative in the basis' coordinates.
     let mut k_s = Matrix6::zeros();
@@ -875,10 +879,7 @@ fn icp_with(
                 cfg.max_correspondence_distance
             )));
         }
-        // Trimming.
-        pairs.par_sort_unstable_by(|a, b| a.d2.total_cmp(&b.d2).then(a.i.cmp(&b.i)));
-        let d2s: Vec<f32> = pairs.iter().map(|p| p.d2).collect();
-        let keep = trimmed_count(&d2s, n_source, cfg.trim);
+        let (keep, d2s) = problem.sort_and_trim(&mut pairs);
         let fitness = pairs.len() as f64 / n_source as f64;
         let rmse = (d2s.iter().map(|&d| d as f64).sum::<f64>() / d2s.len() as f64).sqrt();
         let kept = &pairs[..keep];
