@@ -1,8 +1,6 @@
 //! Quality of an estimate: covariance from the information matrix, and degeneracy detection.
 
-use nalgebra::{
-    Isometry3, Matrix3, Matrix6, SymmetricEigen, Translation3, UnitQuaternion, Vector3,
-};
+use nalgebra::{Isometry3, Matrix6, SymmetricEigen, Translation3, UnitQuaternion, Vector3};
 use serde::Serialize;
 
 /// One poorly constrained direction of the estimate.
@@ -68,15 +66,19 @@ impl Degeneracy {
     }
 }
 
+/// The map `[ω; v] = A [ω; v_c]` from increments about `center` to increments about the origin
+/// (`v = v_c + c × ω`).
+fn about(center: &Vector3<f64>) -> Matrix6<f64> {
+    let mut a = Matrix6::identity();
+    a.fixed_view_mut::<3, 3>(3, 0)
+        .copy_from(&center.cross_matrix());
+    a
+}
+
 /// Re-expresses an information matrix for increments `[ω, v]` about the origin as one for increments
 /// about `center` (`v_c = v + ω × c`).
 pub fn information_about(h: &Matrix6<f64>, center: &Vector3<f64>) -> Matrix6<f64> {
-    let mut a = Matrix6::identity();
-    let cx = Matrix3::new(
-        0.0, -center.z, center.y, center.z, 0.0, -center.x, -center.y, center.x, 0.0,
-    );
-    // [ω; v] = A [ω; v_c] with v = v_c + c × ω.
-    a.fixed_view_mut::<3, 3>(3, 0).copy_from(&cx);
+    let a = about(center);
     a.transpose() * h * a
 }
 
@@ -175,9 +177,7 @@ pub fn covariance(h: &Matrix6<f64>, sigma2: f64) -> Matrix6<f64> {
 /// The map `ξ = B s` from scaled coordinates about `center` (rotations times `length`, then translations of
 /// the centre, all in cloud units) to increments `ξ = [ω, v]` about the origin.
 fn scaled_about(center: &Vector3<f64>, length: f64) -> Matrix6<f64> {
-    let mut a = Matrix6::identity();
-    a.fixed_view_mut::<3, 3>(3, 0)
-        .copy_from(&center.cross_matrix());
+    let a = about(center);
     let l = length.max(1e-12);
     let mut s = Matrix6::identity();
     for k in 0..3 {
