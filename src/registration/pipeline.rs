@@ -20,7 +20,7 @@ use crate::registration::icp::{
 };
 use crate::registration::quality::{
     covariance, covariance_envelope, degeneracy, motion_along, sandwich_covariance, slide_gap,
-    Degeneracy,
+    Degeneracy, HoldTest,
 };
 use crate::registration::ransac::{ransac_sided, RansacConfig, RansacResult, SideNormals};
 use crate::registration::trust::{assess_registration, Trust, TrustConfig};
@@ -84,15 +84,23 @@ pub struct RegisterConfig {
     /// The hold test of weak directions. Every direction whose relative strength is below
     /// [`RegisterConfig::degeneracy_test_threshold`] is tested: ICP at the finest level, started this many
     /// finest voxels off the answer along it (its eigenvector: the points at their RMS radius move that far),
-    /// once each way, must close at least seven eighths of the gap between the two starts (a noisy bare plane's free directions closed at most half of it). A direction
-    /// that does not is reported as unconstrained, whatever its eigenvalue; one that does is held, whatever
-    /// its eigenvalue (default 1, within ICP's capture range of [`RegisterConfig::icp_distance_voxels`]).
+    /// once each way, must end within [`RegisterConfig::degeneracy_hold_fraction`] of the step of each other
+    /// (a noisy bare plane's free directions closed at most three quarters of the gap between the starts).
+    /// A direction that does not is reported (unconstrained, or held only loosely when the ends came within
+    /// a quarter step), whatever its eigenvalue; one that does is held, whatever its eigenvalue (default 1, within ICP's capture range of [`RegisterConfig::icp_distance_voxels`]).
     /// 0 turns the test off: then the directions below [`RegisterConfig::degeneracy_threshold`] are
     /// reported. Measured on fused two-robot cells whose floor outweighs their objects (the yaw's relative
     /// strength 5e-5 to 6e-4, as low as a bare plane's): ICP started 1° off in yaw came back to within
     /// 0.002°; a low-overlap cell whose answer lay 13 mm off along its weakest translation (relative
     /// strength 1.4e-3) had its two starts 6 mm off end 19 mm apart.
     pub degeneracy_slide_voxels: f64,
+    /// The hold test's bar: a direction is held when its two ICP runs end less than this fraction of the
+    /// step apart along it (default 0.065). A noisy bare plane's free directions end 0.54 of the step apart
+    /// or more; on the trust sweep's cells, right answers' held directions ended at most 0.046 apart and
+    /// trusted answers 0.13-0.25° off 0.094-0.16 apart (their basin is that loose). A direction held more
+    /// loosely than the bar makes the result untrusted, with the figures in the reason. How it was chosen
+    /// and checked: docs/accuracy.md ("The hold test's bar").
+    pub degeneracy_hold_fraction: f64,
     /// Directions weaker than this relative strength go to the hold test (default 0.01: simulated cells'
     /// yaw measures 1.9e-3 to 7e-3 and is tested; 3DMatch and LiDAR pairs' weakest 0.19-0.28 are not).
     pub degeneracy_test_threshold: f64,
@@ -143,6 +151,7 @@ impl Default for RegisterConfig {
             icp_max_source_points: 20_000,
             degeneracy_threshold: 6e-4,
             degeneracy_slide_voxels: 1.0,
+            degeneracy_hold_fraction: 0.065,
             degeneracy_test_threshold: 0.01,
             systematic_voxel_fraction: 0.12,
             sided: false,
@@ -199,6 +208,7 @@ impl RegisterConfig {
         check::at_least("icp_max_source_points", self.icp_max_source_points, 1)?;
         check::non_negative("degeneracy_threshold", self.degeneracy_threshold)?;
         check::non_negative("degeneracy_slide_voxels", self.degeneracy_slide_voxels)?;
+        check::fraction("degeneracy_hold_fraction", self.degeneracy_hold_fraction)?;
         check::non_negative("degeneracy_test_threshold", self.degeneracy_test_threshold)?;
         check::non_negative("systematic_voxel_fraction", self.systematic_voxel_fraction)?;
         check::fraction("ambiguity_ratio", self.ambiguity_ratio)?;
@@ -1172,10 +1182,12 @@ fn level_icp_config(cfg: &RegisterConfig, v: f64) -> IcpConfig {
 /// voxel (cloud units); gives the degeneracy with each weak direction that the geometry holds moved to
 /// [`Degeneracy::held`]. For each weak direction, ICP at the finest level (where the answer is settled)
 /// starts [`RegisterConfig::degeneracy_slide_voxels`] voxels off the answer along it, once each way
-/// ([`motion_along`]); the direction is held when the two ends lie less than a quarter of the step apart along it
-/// ([`slide_gap`]): the geometry pulled both back. Along an unconstrained direction (a bare plane's
-/// in-plane motions, a corridor's length) nothing pulls and the ends stay about two steps apart. A run
-/// that fails counts as not held. Runs only when a direction is weak.
+/// ([`motion_along`]); the direction is held when the two ends lie less than
+/// [`RegisterConfig::degeneracy_hold_fraction`] of the step apart along it ([`slide_gap`]): the geometry
+/// pulled both back to one answer. Along an unconstrained direction (a bare plane's in-plane motions, a
+/// corridor's length) nothing pulls and the ends stay about two steps apart; along a loosely held one
+/// (a yaw pinned by a few distant objects) ICP creeps back and stops short. A run that fails counts as
+/// not held. Every tested direction keeps its figures ([`HoldTest`]). Runs only when a direction is weak.
 fn confirm_weak_directions(
     deg: Degeneracy,
     src: &PointCloud,
@@ -1202,7 +1214,7 @@ fn confirm_weak_directions(
         mut held,
     } = deg;
     let mut free = Vec::new();
-    for w in weak {
+    for mut w in weak {
         let delta = step;
         let end = |sign: f64| {
             let start = motion_along(&w, sign * delta) * answer;
@@ -1213,7 +1225,8 @@ fn confirm_weak_directions(
             (Ok(a), Ok(b)) => slide_gap(&w, &a, &b),
             _ => f64::INFINITY,
         };
-        let holds = gap < 0.25 * delta;
+        let holds = gap < cfg.degeneracy_hold_fraction * delta;
+        w.hold = Some(HoldTest::new(&w, delta, gap));
         log::info!(
             "weak direction {} ({:.2}, {:.2}, {:.2}), relative strength {:.1e}: started ±{delta:.4} off, the ends lie {gap:.5} apart: {}",
             w.kind,
@@ -1644,6 +1657,24 @@ mod tests {
         PointCloud::from_points(pts)
     }
 
+    /// The hold test's bar is a fraction of its step: 0 and above 1 are refused, naming the setting.
+    #[test]
+    fn the_hold_fraction_is_checked() {
+        for bad in [0.0, -0.1, 1.5, f64::NAN] {
+            let cfg = RegisterConfig {
+                degeneracy_hold_fraction: bad,
+                ..RegisterConfig::default()
+            };
+            let e = cfg.validate().unwrap_err().to_string();
+            assert!(e.contains("degeneracy_hold_fraction"), "{e}");
+        }
+        let cfg = RegisterConfig {
+            degeneracy_hold_fraction: 0.05,
+            ..RegisterConfig::default()
+        };
+        cfg.validate().unwrap();
+    }
+
     /// The hold test keeps a floor's yaw when boxes stand on it and reports it on the bare floor: every
     /// direction weaker than 0.5 is tested, so the verdict is the test's, not the eigenvalue's.
     #[test]
@@ -1662,6 +1693,11 @@ mod tests {
             if boxes {
                 assert!(!r.degeneracy.is_degenerate(), "{:?}", r.degeneracy);
                 assert!(!r.degeneracy.held.is_empty(), "{:?}", r.degeneracy);
+                for w in &r.degeneracy.held {
+                    let h = w.hold.expect("a held direction carries its test");
+                    assert!(h.step > 0.0, "{h:?}");
+                    assert!(h.fraction() < cfg.degeneracy_hold_fraction, "{h:?}");
+                }
                 let (deg, m) = crate::geometry::transform::pose_error(&r.transform, &truth);
                 assert!(deg < 0.05 && m < 2e-3, "{deg}° {m} m");
             } else {
@@ -1669,6 +1705,15 @@ mod tests {
                 assert_eq!(free.len(), 3, "{:?}", r.degeneracy);
                 assert_eq!(free.iter().filter(|k| **k == "translation").count(), 2);
                 assert!(!r.trust.trusted);
+                // Free, not loosely held: the ends stayed far apart, and the reason says so with figures.
+                for w in &r.degeneracy.weak {
+                    assert!(w.hold.expect("tested").fraction() >= 0.25, "{w:?}");
+                }
+                let reason = r.trust.reasons.join(" ");
+                assert!(
+                    reason.contains("unconstrained") && reason.contains("apart"),
+                    "{reason}"
+                );
             }
         }
     }

@@ -23,6 +23,80 @@ pub struct WeakDirection {
     /// The RMS radius of the points about the centre (cloud units).
     #[serde(skip)]
     pub radius: f64,
+    /// The hold test's measurement along it, when it ran (see [`slide_gap`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hold: Option<HoldTest>,
+}
+
+/// What the hold test measured along one weak direction: ICP at the finest level started `step` off the
+/// answer along it, once each way, and its two ends lay `gap` apart along it. Both in cloud units of motion
+/// of the points at the RMS radius (a rotation of `step / radius` radians).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct HoldTest {
+    /// How far off each start was (cloud units at the RMS radius).
+    pub step: f64,
+    /// How far apart the two ends lay along the direction (same units; infinite when a run failed).
+    pub gap: f64,
+    /// `step` as a rotation, degrees, for a rotation; `None` for a translation.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub step_deg: Option<f64>,
+    /// `gap` as a rotation, degrees, for a rotation; `None` for a translation.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gap_deg: Option<f64>,
+}
+
+impl WeakDirection {
+    /// "rotation about (x, y, z)" or "translation along (x, y, z)".
+    pub fn label(&self) -> String {
+        let prep = if self.kind == "rotation" {
+            "about"
+        } else {
+            "along"
+        };
+        format!(
+            "{} {prep} ({:.2}, {:.2}, {:.2})",
+            self.kind, self.axis[0], self.axis[1], self.axis[2]
+        )
+    }
+
+    /// The hold test's figures in words, e.g. "started ±0.81° off, the ends 0.128° apart", with `unit`
+    /// naming the cloud's length unit; `None` when the test did not run.
+    pub fn hold_description(&self, unit: &str) -> Option<String> {
+        let h = self.hold?;
+        Some(match (h.step_deg, h.gap_deg) {
+            (Some(s), Some(g)) => format!("started ±{s:.2}° off, the ends {g:.3}° apart"),
+            _ => {
+                let sp = if unit.is_empty() { "" } else { " " };
+                format!(
+                    "started ±{:.4}{sp}{unit} off, the ends {:.4}{sp}{unit} apart",
+                    h.step, h.gap
+                )
+            }
+        })
+    }
+}
+
+impl HoldTest {
+    /// The measurement for direction `w` (its kind and RMS radius give the degrees).
+    pub fn new(w: &WeakDirection, step: f64, gap: f64) -> Self {
+        let deg =
+            |x: f64| (w.kind == "rotation" && w.radius > 0.0).then(|| (x / w.radius).to_degrees());
+        Self {
+            step,
+            gap,
+            step_deg: deg(step),
+            gap_deg: deg(gap),
+        }
+    }
+
+    /// The gap as a fraction of the step (∞ when the step is 0).
+    pub fn fraction(&self) -> f64 {
+        if self.step > 0.0 {
+            self.gap / self.step
+        } else {
+            f64::INFINITY
+        }
+    }
 }
 
 /// Degeneracy analysis of an information matrix.
@@ -50,17 +124,7 @@ impl Degeneracy {
     pub fn describe(&self) -> String {
         self.weak
             .iter()
-            .map(|w| {
-                let prep = if w.kind == "rotation" {
-                    "about"
-                } else {
-                    "along"
-                };
-                format!(
-                    "{} {prep} ({:.2}, {:.2}, {:.2})",
-                    w.kind, w.axis[0], w.axis[1], w.axis[2]
-                )
-            })
+            .map(WeakDirection::label)
             .collect::<Vec<_>>()
             .join(", ")
     }
@@ -120,6 +184,7 @@ pub fn degeneracy(
                 motion_per_unit: [v[0] / l, v[1] / l, v[2] / l, v[3], v[4], v[5]],
                 center: [center.x, center.y, center.z],
                 radius: l,
+                hold: None,
             });
         }
     }

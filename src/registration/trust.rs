@@ -108,6 +108,40 @@ impl Trust {
     }
 }
 
+/// Below this fraction of its step a weak direction's hold-test gap is called loosely held rather than
+/// unconstrained: ICP closed more than seven eighths of the distance between its two starts (a noisy bare
+/// plane's free directions close at most about three quarters of it, docs/accuracy.md).
+const LOOSE_BELOW_FRACTION: f64 = 0.25;
+
+/// Why a degenerate registration is not trusted, true of what was measured: directions the hold test found
+/// free ("unconstrained"), or held more loosely than its bar ("held only loosely"), each with its figures;
+/// directions judged by their eigenvalue alone (no hold test) are "unconstrained".
+fn degeneracy_reason(d: &crate::registration::quality::Degeneracy, unit: &str) -> String {
+    let loose = d
+        .weak
+        .iter()
+        .all(|w| w.hold.is_some_and(|h| h.fraction() < LOOSE_BELOW_FRACTION));
+    let items: Vec<String> = d
+        .weak
+        .iter()
+        .map(|w| match w.hold_description(unit) {
+            Some(h) => format!("{}: {h}", w.label()),
+            None => w.label(),
+        })
+        .collect();
+    if loose {
+        format!(
+            "the geometry holds the result only loosely ({}): ICP started off either way along it did not come back to one answer, so the result may lie anywhere between",
+            items.join("; ")
+        )
+    } else {
+        format!(
+            "the geometry leaves motion unconstrained ({}): ICP started off along it stayed off, so the result may slide along it",
+            items.join("; ")
+        )
+    }
+}
+
 /// The registration checks: converged, not degenerate, not ambiguous, enough fitness, overlap and surface
 /// agreement. `unit` names the clouds' length unit in messages (e.g. "m").
 pub fn assess_registration(r: &Registration, cfg: &TrustConfig, unit: &str) -> Trust {
@@ -120,10 +154,7 @@ pub fn assess_registration(r: &Registration, cfg: &TrustConfig, unit: &str) -> T
     }
     if r.degeneracy.is_degenerate() {
         t.fail(
-            format!(
-                "the geometry leaves motion unconstrained ({}): ICP started off along it stayed off, so the result may slide along it",
-                r.degeneracy.describe()
-            ),
+            degeneracy_reason(&r.degeneracy, unit),
             "capture views with more 3-D structure in the shared part (objects of different orientations, not a bare plane)",
         );
     }
@@ -173,4 +204,63 @@ pub fn assess_registration(r: &Registration, cfg: &TrustConfig, unit: &str) -> T
         );
     }
     t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::registration::quality::{Degeneracy, HoldTest, WeakDirection};
+
+    fn yaw(hold: Option<(f64, f64)>) -> WeakDirection {
+        let mut w = WeakDirection {
+            kind: "rotation",
+            axis: [0.0, 0.0, 1.0],
+            relative_strength: 3e-4,
+            motion_per_unit: [0.0, 0.0, 2.0, 0.0, 0.0, 0.0],
+            center: [0.0; 3],
+            radius: 0.5,
+            hold: None,
+        };
+        w.hold = hold.map(|(step, gap)| HoldTest::new(&w, step, gap));
+        w
+    }
+
+    fn reason(weak: Vec<WeakDirection>) -> String {
+        degeneracy_reason(
+            &Degeneracy {
+                condition: 3e-4,
+                weak,
+                held: Vec::new(),
+            },
+            "m",
+        )
+    }
+
+    /// The reason names what the hold test measured: ends far apart are "unconstrained", ends that came
+    /// most of the way back are "held only loosely", and an untested direction (eigenvalue alone) is
+    /// "unconstrained" without figures.
+    #[test]
+    fn the_degeneracy_reason_says_what_the_hold_test_measured() {
+        // One finest voxel of 7 mm at a 0.5 m radius: 0.80° of yaw.
+        let loose = reason(vec![yaw(Some((0.007, 0.0011)))]);
+        assert!(loose.contains("only loosely"), "{loose}");
+        assert!(
+            loose.contains("±0.80° off") && loose.contains("0.126° apart"),
+            "{loose}"
+        );
+        assert!(!loose.contains("unconstrained"), "{loose}");
+        let free = reason(vec![yaw(Some((0.007, 0.011)))]);
+        assert!(
+            free.contains("unconstrained") && free.contains("1.261° apart"),
+            "{free}"
+        );
+        // One loose and one free direction: the free one decides the wording.
+        let both = reason(vec![yaw(Some((0.007, 0.0011))), yaw(Some((0.007, 0.011)))]);
+        assert!(both.contains("unconstrained"), "{both}");
+        let untested = reason(vec![yaw(None)]);
+        assert!(
+            untested.contains("unconstrained") && !untested.contains("apart"),
+            "{untested}"
+        );
+    }
 }
