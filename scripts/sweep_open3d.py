@@ -7,7 +7,8 @@ KEEP_DIR holds the cells a sweep kept (`DEPTHCAL_TRUST_SWEEP_KEEP=KEEP_DIR`), ea
 the sweep registered (`fused-<robot>.ply`, `depthcal fuse` of each robot) and `ground_truth.json`;
 SWEEP_OUTPUT is that sweep's printed output (one line per cell). For each cell and each voxel the recipe
 (voxel downsample, normals r=2v/30, FPFH r=5v/100, mutual-filtered RANSAC 1.5v with edge-length and distance
-checkers, 100000 iterations / 0.999, point-to-plane ICP at 0.4v: the recipe of `../shared/peers/register.py`)
+checkers, 100000 iterations / 0.999, point-to-plane ICP at 0.4v: `bench_peers.open3d_recipe`, the recipe of
+`../shared/peers/register.py`)
 registers the second robot's cloud onto the reference's, and the result is compared with `T_base1_base2`.
 Right is the sweep's: within 0.1 deg and 2 mm. Prints one line per cell and a table per family: Open3D right
 (at any of the voxels tried, so the count is generous to Open3D), and the cells where `calibrate` is wrong
@@ -45,7 +46,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("sweep_output")
     ap.add_argument("keep_dir")
-    ap.add_argument("--voxel", type=float, nargs="+", default=[0.01, 0.02, 0.05])
+    ap.add_argument("--voxel", type=float, nargs="+", default=[0.02, 0.05])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args()
@@ -54,24 +55,11 @@ def main():
     import numpy as np
     import open3d as o3d
 
-    o3d.utility.random.seed(a.seed)
-    reg = o3d.pipelines.registration
-    sweep = sweep_lines(a.sweep_output)
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from bench_peers import open3d_recipe
 
-    def recipe(src, tgt, v):
-        s_d, t_d = src.voxel_down_sample(v), tgt.voxel_down_sample(v)
-        for c in (s_d, t_d):
-            c.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * v, max_nn=30))
-        f = lambda c: reg.compute_fpfh_feature(c, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * v, max_nn=100))
-        s_f, t_f = f(s_d), f(t_d)
-        ransac = reg.registration_ransac_based_on_feature_matching(
-            s_d, t_d, s_f, t_f, True, 1.5 * v,
-            reg.TransformationEstimationPointToPoint(False), 3,
-            [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * v)],
-            reg.RANSACConvergenceCriteria(100000, 0.999))
-        icp = reg.registration_icp(s_d, t_d, 0.4 * v, ransac.transformation,
-                                   reg.TransformationEstimationPointToPlane())
-        return np.asarray(icp.transformation)
+    o3d.utility.random.seed(a.seed)
+    sweep = sweep_lines(a.sweep_output)
 
     def error(T, G):
         D = T @ np.linalg.inv(G)
@@ -100,7 +88,7 @@ def main():
         errs = []
         t0 = time.perf_counter()
         for v in a.voxel:
-            errs.append(error(recipe(src, tgt, v), G))
+            errs.append(error(open3d_recipe(src, tgt, v), G))
         wall = time.perf_counter() - t0
         o3d_right = any(r <= RIGHT_DEG and t <= RIGHT_MM for r, t in errs)
         cal, regr = sweep.get((family, seed), (None, None))

@@ -251,6 +251,19 @@ pub struct RobotConsistency {
     pub findings: Vec<String>,
 }
 
+impl RobotConsistency {
+    /// Nothing judged yet: consistent, no frames, no findings.
+    fn unjudged(robot: &CellRobot) -> Self {
+        Self {
+            robot: robot.name.clone(),
+            consistent: true,
+            frames: Vec::new(),
+            median_residual_m: 0.0,
+            findings: Vec::new(),
+        }
+    }
+}
+
 /// A sampled block of a frame: centre pixel and mid depth (metres at the nominal depth scale).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Sample {
@@ -629,13 +642,7 @@ pub fn robot_consistency(
     fused: &FusedCloud,
     cfg: &ConsistencyConfig,
 ) -> RobotConsistency {
-    let mut out = RobotConsistency {
-        robot: robot.name.clone(),
-        consistent: true,
-        frames: Vec::new(),
-        median_residual_m: 0.0,
-        findings: Vec::new(),
-    };
+    let mut out = RobotConsistency::unjudged(robot);
     if let Err(e) = cfg.validate() {
         out.findings.push(format!(
             "robot {}: consistency not checked: {e}",
@@ -1356,13 +1363,7 @@ mod tests {
                 .collect()
         };
         let judge_with = |odd: &dyn Fn(usize) -> f32| {
-            let mut out = RobotConsistency {
-                robot: robot.name.clone(),
-                consistent: true,
-                frames: Vec::new(),
-                median_residual_m: 0.0,
-                findings: Vec::new(),
-            };
+            let mut out = RobotConsistency::unjudged(robot);
             judge(robot, &setup, raws(odd), 1e-3, &cfg, &mut out);
             out
         };
