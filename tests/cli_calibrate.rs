@@ -67,3 +67,38 @@ fn compare_runs_depth_and_says_why_the_others_are_skipped() {
     assert_eq!(code, 0);
     assert!(out.contains("depth") && out.contains("skipped"), "{out}");
 }
+
+/// Two bases cannot share one footprint: an answer that puts them 2 cm apart (here given with `--init`
+/// and kept with `--no-refine`) is not trusted, and the reason gives the distance; `min_base_distance_m`
+/// 0 turns the check off, and a negative one is an error naming the key.
+#[test]
+fn bases_on_top_of_each_other_are_not_trusted() {
+    let dir = common::scratch("coincident-bases");
+    let init = dir.join("init.txt");
+    std::fs::write(&init, "1 0 0 0.02\n0 1 0 0\n0 0 1 0\n0 0 0 1\n").unwrap();
+    let init = init.to_str().unwrap();
+    let args = ["calibrate", DEMO, "--json", "--no-refine", "--init", init];
+    let (code, out, err) = depthcal(&args);
+    assert_eq!(code, 3, "{err}");
+    let v = json(&out);
+    assert_eq!(v["trusted"], false);
+    let reasons = v["reasons"].to_string();
+    assert!(
+        reasons.contains("base would stand 0.020 m from robot")
+            && reasons.contains("min_base_distance_m 0.12 m"),
+        "{reasons}"
+    );
+    let off = dir.join("off.json");
+    std::fs::write(&off, r#"{"min_base_distance_m": 0}"#).unwrap();
+    let (_, out, err) = depthcal(&[&args[..], &["--config", off.to_str().unwrap()]].concat());
+    let v = json(&out);
+    assert!(
+        !v["reasons"].to_string().contains("base would stand"),
+        "{err}"
+    );
+    let bad = dir.join("bad.json");
+    std::fs::write(&bad, r#"{"min_base_distance_m": -1}"#).unwrap();
+    let (code, _, err) = depthcal(&["calibrate", DEMO, "--config", bad.to_str().unwrap()]);
+    assert_ne!(code, 0);
+    assert!(err.contains("min_base_distance_m"), "{err}");
+}

@@ -126,19 +126,19 @@ fn lidar_pair() {
     }
 }
 
-/// The stretch goal of issue 2 (about 20% overlap, 118° apart): not reached yet. At 20% overlap the
-/// wrong hypotheses fit the big planes better than the truth does (fitness 0.39-0.41 against 0.27), so
-/// the cloud-fitness verification picks them. Run with `--ignored` to see where it stands.
+/// 3DLoMatch (about 20% overlap, 118° apart): the cost's optimum lies 5-6° from the stated truth (ICP
+/// started at the truth settles at 5.3-5.8°, ours and Open3D's at 2 cm), beyond the 3DMatch truth floor
+/// of 2.5° / 5 cm, so the answer must not be trusted unless it is within that floor. The hold test refuses
+/// it: ICP started ±1.07° off along the weakest rotation ends 0.19° apart (the bar is 0.065 of the step).
 #[test]
-#[ignore = "stretch goal, not yet reached (see the doc comment)"]
-fn three_dlomatch_low_overlap() {
+fn three_dlomatch_low_overlap_is_right_or_not_trusted() {
     let Some(d) = data("3dlomatch-redkitchen") else {
         return;
     };
     let truth = matrix(&d.join("T_21_34.txt"));
     let src = read_cloud(d.join("cloud_bin_34.ply")).unwrap();
     let tgt = read_cloud(d.join("cloud_bin_21.ply")).unwrap();
-    for seed in [0, 11] {
+    for seed in [0, 11].into_iter().chain(extra_seeds()) {
         let (r, t, reg) = perturbed_errors(
             &src,
             &tgt,
@@ -149,15 +149,24 @@ fn three_dlomatch_low_overlap() {
             &RegisterConfig::default(),
         );
         eprintln!(
-            "3DLoMatch seed {seed}: {r:.3} deg, {:.1} mm, overlap {:.3}",
+            "3DLoMatch seed {seed}: {r:.3} deg, {:.1} mm, overlap {:.3}, trusted {}, {:?}",
             t * 1e3,
-            reg.overlap
+            reg.overlap,
+            reg.trust.trusted,
+            reg.trust.reasons
         );
+        let right = r < 2.5 && t < 0.05;
         assert!(
-            r < 5.0 && t < 0.10,
-            "3DLoMatch seed {seed}: {r:.3} deg, {:.1} mm",
+            right || !reg.trust.trusted,
+            "3DLoMatch seed {seed}: {r:.3} deg, {:.1} mm off and trusted",
             t * 1e3
         );
+        if !reg.trust.trusted {
+            assert!(
+                !reg.trust.reasons.is_empty(),
+                "seed {seed}: refused without a reason"
+            );
+        }
     }
 }
 

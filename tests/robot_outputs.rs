@@ -633,6 +633,56 @@ fn convert_writes_and_reads_ur_abb_and_fanuc() {
     let _ = std::fs::remove_dir_all(&d);
 }
 
+/// The half turn of issue 36 (a pose row `convert --to matrix` wrote from a UR pose of angle π) was read
+/// as no rotation at all; through every format and back it must stay that row.
+#[test]
+fn convert_keeps_a_half_turn_through_every_format() {
+    let d = scratch("convert-half-turn");
+    let row = [
+        0.421964153,
+        -0.192161107,
+        0.886013748,
+        0.457742764,
+        -0.192161107,
+        -0.974031771,
+        -0.119733949,
+        0.200569575,
+        0.886013748,
+        -0.119733949,
+        -0.447932382,
+        0.422907741,
+        0.0,
+        0.0,
+        0.0,
+        1.0,
+    ];
+    let text: Vec<String> = row.iter().map(|v| v.to_string()).collect();
+    let src = d.join("matrix.csv");
+    std::fs::write(
+        &src,
+        format!("{}\np07,{}\n", PoseFormat::Matrix.header(), text.join(",")),
+    )
+    .unwrap();
+    let mut prev = src.to_str().unwrap().to_string();
+    for to in ["ur", "xyzquat", "abb", "fanuc", "kuka", "matrix"] {
+        let out = d.join(format!("{to}-out.csv"));
+        let (code, _, err) = depthcal(&["convert", &prev, "--to", to, "-o", out.to_str().unwrap()]);
+        assert_eq!(code, 0, "{err}");
+        let (_, recs) = read_poses(&out, None).unwrap();
+        let angle = recs[0].pose.rotation.angle().to_degrees();
+        assert!((angle - 180.0).abs() < 1e-4, "{to}: a turn of {angle}°");
+        prev = out.to_str().unwrap().to_string();
+    }
+    let (_, back) = read_poses(&prev, None).unwrap();
+    let m = back[0].pose.to_homogeneous();
+    for r in 0..4 {
+        for c in 0..4 {
+            assert!((m[(r, c)] - row[4 * r + c]).abs() < 1e-6, "{m}");
+        }
+    }
+    let _ = std::fs::remove_dir_all(&d);
+}
+
 #[test]
 fn an_untrusted_calibration_writes_no_output() {
     let d = scratch("untrusted-output");

@@ -16,9 +16,10 @@
 //!    ([`FreeSpaceTest`]);
 //! 3. the answer is the best-scoring one among those that pass the free-space test (among all when none
 //!    does), the score being the agreement weighed by the free-space test
-//!    (`exp(−violation / choice_penalty_scale)`, [`VisibilityConfig::choice_penalty_scale`]): on foreign
-//!    cells the truth violated 0.1-1.2% where wrong overlays that agreed as well or better violated 3-13%
-//!    ("Right on any cell" in docs/accuracy.md); a far-away one that also passes and scores almost as well
+//!    (`exp(−excess / choice_penalty_scale)`, [`VisibilityConfig::choice_penalty_scale`], the excess
+//!    being the violation beyond what each robot's own frames show against its own cloud, the test's
+//!    noise level): on foreign cells the truth violated 0.1-1.2% where wrong overlays that agreed as well
+//!    or better violated 3-13% ("Right on any cell" in docs/accuracy.md); a far-away one that also passes and scores almost as well
 //!    ([`crate::registration::RegisterConfig::ambiguity_ratio`]) makes the answer ambiguous: both explain
 //!    the data at full resolution.
 
@@ -147,7 +148,8 @@ pub struct JudgedSummary {
     /// It passes the free-space test.
     pub passes_free_space: bool,
     /// What the choice ranks by: the agreement weighed by the free-space test,
-    /// `agreement · exp(−violation / choice_penalty_scale)` ([`VisibilityConfig::choice_penalty_scale`]).
+    /// `agreement · exp(−excess / choice_penalty_scale)`, the excess being the violation beyond each
+    /// robot's own frames' against its own cloud ([`VisibilityConfig::choice_penalty_scale`]).
     pub score: f64,
     /// It is the answer.
     pub chosen: bool,
@@ -158,13 +160,19 @@ impl Judged {
     /// ([`VisibilityConfig::choice_penalty_scale`]); not chosen yet.
     pub fn summary(&self, penalty_scale: f64) -> JudgedSummary {
         let violation = self.free_space.as_ref().map(|f| f.violation);
+        // Only the violation beyond what each robot's own frames show against its own cloud counts: below
+        // that level the test cannot tell one hypothesis from another.
+        let excess = self
+            .free_space
+            .as_ref()
+            .map_or(0.0, |f| (f.violation - f.own_violation).max(0.0));
         JudgedSummary {
             transform: self.registration.transform,
             agreement: self.agreement(),
             fitness: self.registration.fitness,
             free_space_violation: violation,
             passes_free_space: self.passes_free_space(),
-            score: self.agreement() * (-violation.unwrap_or(0.0) / penalty_scale).exp(),
+            score: self.agreement() * (-excess / penalty_scale).exp(),
             chosen: false,
         }
     }

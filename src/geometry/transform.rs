@@ -57,7 +57,12 @@ pub fn isometry_from_rows(m: &[f64; 16], what: &str) -> Result<Isometry3<f64>> {
             r.determinant()
         )));
     }
-    let rot = UnitQuaternion::from_matrix(&r);
+    // The nearest rotation (SVD) removes the round-off; the quaternion then comes from the closed form.
+    // nalgebra's iterative `UnitQuaternion::from_matrix` starts at the identity and stops there on a half
+    // turn (a symmetric matrix gives it no direction to move in): a 180° pose read as no rotation at all.
+    let nearest = nearest_rotation(&r)
+        .ok_or_else(|| Error::InvalidInput(format!("{what}: the rotation block is singular")))?;
+    let rot = UnitQuaternion::from_rotation_matrix(&nearest);
     Ok(Isometry3::from_parts(
         Translation3::new(m[3], m[7], m[11]),
         rot,
@@ -146,6 +151,76 @@ pub fn random_isometry(rng: &mut Rng, max_angle_rad: f64, max_translation: f64) 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The pose row of issue 36 (a half turn, as `convert --to matrix` wrote it from a UR pose of angle π)
+    /// was read as the identity.
+    #[test]
+    fn a_half_turn_row_is_read_as_a_half_turn() {
+        let m = [
+            0.421964153,
+            -0.192161107,
+            0.886013748,
+            0.457742764,
+            -0.192161107,
+            -0.974031771,
+            -0.119733949,
+            0.200569575,
+            0.886013748,
+            -0.119733949,
+            -0.447932382,
+            0.422907741,
+            0.0,
+            0.0,
+            0.0,
+            1.0,
+        ];
+        let t = isometry_from_rows(&m, "row").unwrap();
+        assert!((t.rotation.angle().to_degrees() - 180.0).abs() < 1e-4);
+        let back = isometry_to_rows(&t);
+        for (a, b) in m.iter().zip(back.iter()) {
+            assert!((a - b).abs() < 1e-8, "{m:?} read back as {back:?}");
+        }
+    }
+
+    /// Every rotation reads back as itself, half turns about any axis and angles within 1e-9 rad of one
+    /// included: against a brute-force oracle, the matrix itself.
+    #[test]
+    fn rows_of_every_rotation_read_back_as_that_rotation() {
+        let mut rng = Rng::new(36);
+        let pi = std::f64::consts::PI;
+        for i in 0..2000 {
+            let axis = nalgebra::Unit::new_normalize(Vector3::new(
+                rng.normal(),
+                rng.normal(),
+                rng.normal(),
+            ));
+            let angle = match i % 5 {
+                0 => pi,
+                1 => pi - 1e-9,
+                2 => pi - rng.uniform(0.0, 1e-4),
+                3 => rng.uniform(0.0, 1e-9),
+                _ => rng.uniform(0.0, pi),
+            };
+            let t = Isometry3::from_parts(
+                Translation3::new(rng.normal(), rng.normal(), rng.normal()),
+                UnitQuaternion::from_axis_angle(&axis, angle),
+            );
+            let m = isometry_to_rows(&t);
+            let back = isometry_to_rows(&isometry_from_rows(&m, "t").unwrap());
+            for (a, b) in m.iter().zip(back.iter()) {
+                assert!(
+                    (a - b).abs() < 1e-12,
+                    "angle {angle}, axis {axis:?}: {a} != {b}"
+                );
+            }
+        }
+        for d in [[-1.0, -1.0, 1.0], [-1.0, 1.0, -1.0], [1.0, -1.0, -1.0]] {
+            let mut m = [0.0; 16];
+            (m[0], m[5], m[10], m[15]) = (d[0], d[1], d[2], 1.0);
+            let t = isometry_from_rows(&m, "diag").unwrap();
+            assert_eq!(isometry_to_rows(&t).map(|v| v.round()), m);
+        }
+    }
 
     #[test]
     fn rows_round_trip_and_checks() {

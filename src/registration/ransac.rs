@@ -61,6 +61,18 @@ impl PoseConstraint {
         true
     }
 
+    /// The same bounds with the translation's length also at least `min` (cloud units; `min` ≤ 0 changes
+    /// nothing).
+    pub fn with_min_translation(mut self, min: f64) -> Self {
+        if min > 0.0 {
+            self.translation_range = Some(match self.translation_range {
+                Some([lo, hi]) => [lo.max(min), hi],
+                None => [min, f64::MAX],
+            });
+        }
+        self
+    }
+
     /// True when no bound is set.
     pub fn is_empty(&self) -> bool {
         self.max_tilt_deg.is_none() && self.translation_range.is_none()
@@ -813,6 +825,33 @@ pub fn cloud_fitness(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A minimum translation joins a stated range (the larger lower bound wins) or makes one, and 0
+    /// changes nothing.
+    #[test]
+    fn a_minimum_translation_joins_the_range() {
+        let at = |d: f64| Isometry3::translation(d, 0.0, 0.0);
+        let none = PoseConstraint::default();
+        assert_eq!(none.clone().with_min_translation(0.0), none);
+        let c = none.with_min_translation(0.12);
+        assert!(!c.is_empty());
+        assert!(!c.accepts(&at(0.03)) && c.accepts(&at(0.2)) && c.accepts(&at(50.0)));
+        let ranged = PoseConstraint {
+            max_tilt_deg: Some(5.0),
+            translation_range: Some([0.05, 1.5]),
+        };
+        let c = ranged.with_min_translation(0.12);
+        assert_eq!(c.translation_range, Some([0.12, 1.5]));
+        assert_eq!(c.max_tilt_deg, Some(5.0));
+        let far = PoseConstraint {
+            max_tilt_deg: None,
+            translation_range: Some([0.9, 1.5]),
+        };
+        assert_eq!(
+            far.with_min_translation(0.12).translation_range,
+            Some([0.9, 1.5])
+        );
+    }
 
     /// The row-parallel graph is the graph of testing each pair once and mirroring it (the oracle), with
     /// ascending rows and no self-loops, for sizes with and without a partial last lane.

@@ -159,9 +159,10 @@ pub fn assess_registration(r: &Registration, cfg: &TrustConfig, unit: &str) -> T
         );
     }
     if let Some(a) = &r.ambiguity {
+        let sp = if unit.is_empty() { "" } else { " " };
         t.fail(
             format!(
-                "ambiguous: a second answer {:.2}° / {:.4} {unit} away scores {:.0}% of the best",
+                "ambiguous: a second answer {:.2}° / {:.4}{sp}{unit} away scores {:.0}% of the best",
                 a.rotation_deg,
                 a.translation,
                 a.score_ratio * 1e2
