@@ -638,29 +638,14 @@ fn convert_writes_and_reads_ur_abb_and_fanuc() {
 #[test]
 fn convert_keeps_a_half_turn_through_every_format() {
     let d = scratch("convert-half-turn");
-    let row = [
-        0.421964153,
-        -0.192161107,
-        0.886013748,
-        0.457742764,
-        -0.192161107,
-        -0.974031771,
-        -0.119733949,
-        0.200569575,
-        0.886013748,
-        -0.119733949,
-        -0.447932382,
-        0.422907741,
-        0.0,
-        0.0,
-        0.0,
-        1.0,
-    ];
-    let text: Vec<String> = row.iter().map(|v| v.to_string()).collect();
+    // The row as the issue gives it (`frame,m00,m01,…,m33`).
+    let text = "0.421964153,-0.192161107,0.886013748,0.457742764,-0.192161107,-0.974031771,\
+                -0.119733949,0.200569575,0.886013748,-0.119733949,-0.447932382,0.422907741,0,0,0,1";
+    let row: Vec<f64> = text.split(',').map(|v| v.parse().unwrap()).collect();
     let src = d.join("matrix.csv");
     std::fs::write(
         &src,
-        format!("{}\np07,{}\n", PoseFormat::Matrix.header(), text.join(",")),
+        format!("{}\np07,{text}\n", PoseFormat::Matrix.header()),
     )
     .unwrap();
     let mut prev = src.to_str().unwrap().to_string();
