@@ -78,8 +78,8 @@ pub struct CalibrateConfig {
     /// a prior of the cell but a fact of any cell: two bases cannot share one footprint, and the smallest
     /// common arm's is 128 mm across (a UR3's). The global search drops hypotheses that put the bases
     /// closer, and a result that does is not trusted. On cells whose robots each see mostly their own
-    /// side of the workspace, the clouds laid on each other (the bases 6-80 mm apart) explained the data
-    /// better than the truth and were the answer on 6 of 10 wrong low-overlap cells (docs/accuracy.md).
+    /// side of the workspace, the clouds laid on each other (the bases 6-77 mm apart) explained the data
+    /// better than the truth and were the answer on 4 of 10 wrong low-overlap cells (docs/accuracy.md).
     pub min_base_distance_m: f64,
 }
 
