@@ -102,3 +102,36 @@ fn bases_on_top_of_each_other_are_not_trusted() {
     assert_ne!(code, 0);
     assert!(err.contains("min_base_distance_m"), "{err}");
 }
+
+/// A cell of three robots: the pair calibrated is named, and so is the robot left out (not dropped in
+/// silence); the JSON carries the same warning.
+#[test]
+fn a_third_robot_is_named_as_not_calibrated() {
+    let dir = common::scratch("three-robots");
+    let demo = std::fs::read_to_string(format!("{DEMO}/cell.toml")).unwrap();
+    let right =
+        &demo[demo.find("[[robot]]\nname = \"right\"").unwrap()..demo.find("[priors]").unwrap()];
+    let text = format!("{demo}\n{}", right.replace("\"right\"", "\"third\""))
+        .replace("\"left/", &format!("\"{DEMO}/left/"))
+        .replace("\"right/", &format!("\"{DEMO}/right/"));
+    // The [priors] table must stay last: move the third robot above it.
+    let (head, priors) = text.split_at(text.find("[priors]").unwrap());
+    let (priors, third) = priors.split_at(priors.find("[[robot]]").unwrap());
+    std::fs::write(
+        dir.join("cell.toml"),
+        format!("allow_outside_paths = true\n{head}{third}\n{priors}"),
+    )
+    .unwrap();
+    let cell = dir.to_str().unwrap();
+    let (_, out, err) = depthcal(&["calibrate", cell, "--json", "--no-refine"]);
+    assert!(
+        err.contains("the cell names 3 robots") && err.contains("not calibrated: [\"third\"]"),
+        "{err}"
+    );
+    let v = json(&out);
+    assert!(
+        v["warnings"].to_string().contains("not calibrated"),
+        "{}",
+        v["warnings"]
+    );
+}

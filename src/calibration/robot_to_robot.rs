@@ -557,6 +557,22 @@ pub fn calibrate_request(req: CalibrateRequest) -> Result<(Calibration, FusedCel
         FusedCell::without_clouds(cell, cfg)?
     };
     let mut c = refine_cell(cell, &fused, initializer, cfg, refine, progress)?;
+    // One pair is calibrated; a robot beyond it is named, not dropped in silence.
+    let left_out: Vec<&str> = cell
+        .robots
+        .iter()
+        .map(|r| r.name.as_str())
+        .filter(|n| *n != c.reference && *n != c.other)
+        .collect();
+    if !left_out.is_empty() {
+        c.warnings.push(format!(
+            "the cell names {} robots and calibrate solves one pair: {:?} against the reference {:?}; not calibrated: {:?}",
+            cell.robots.len(),
+            c.other,
+            c.reference,
+            left_out
+        ));
+    }
     if fuse {
         c.timings_ms.insert(0, ("fuse".into(), fused.fuse_ms));
         if !fused.pose_scatter.is_empty() {
