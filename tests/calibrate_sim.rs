@@ -15,7 +15,7 @@ fn run(name: &str, cfg: SimConfig) -> depthcal::Result<Calibration> {
 }
 
 /// Simulates and calibrates; also returns the fractions of each robot's view the other robot saw too.
-fn run_shared(name: &str, cfg: SimConfig) -> depthcal::Result<(Calibration, [f64; 2])> {
+fn run_shared(name: &str, cfg: SimConfig) -> depthcal::Result<(Calibration, Vec<f64>)> {
     let dir = scratch(name);
     let (sim, _) = simulate_cell(&cfg, &dir, &|_| {})?;
     let cell = Cell::open(&dir)?;

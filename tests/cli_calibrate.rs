@@ -103,10 +103,11 @@ fn bases_on_top_of_each_other_are_not_trusted() {
     assert!(err.contains("min_base_distance_m"), "{err}");
 }
 
-/// A cell of three robots: the pair calibrated is named, and so is the robot left out (not dropped in
-/// silence); the JSON carries the same warning.
+/// A cell of three robots whose third is the second's frames again under another name: each pair with
+/// the reference is trusted on its own, but the joint solution puts two bases on one footprint, so
+/// neither is trusted (exit 3); every robot is in the JSON.
 #[test]
-fn a_third_robot_is_named_as_not_calibrated() {
+fn a_third_robot_with_the_second_robots_frames_is_not_trusted() {
     let dir = common::scratch("three-robots");
     let demo = std::fs::read_to_string(format!("{DEMO}/cell.toml")).unwrap();
     let right =
@@ -123,15 +124,26 @@ fn a_third_robot_is_named_as_not_calibrated() {
     )
     .unwrap();
     let cell = dir.to_str().unwrap();
-    let (_, out, err) = depthcal(&["calibrate", cell, "--json", "--no-refine"]);
-    assert!(
-        err.contains("the cell names 3 robots") && err.contains("not calibrated: [\"third\"]"),
-        "{err}"
-    );
+    let (code, out, err) = depthcal(&["calibrate", cell, "--json"]);
+    assert_eq!(code, 3, "{err}");
     let v = json(&out);
+    let robots = v["robots"].as_array().expect("robots");
+    assert_eq!(robots.len(), 2, "{}", v["robots"]);
+    for r in robots {
+        assert_eq!(r["trusted"], false, "{r}");
+        assert!(
+            r["reasons"]
+                .to_string()
+                .contains("closer than two robots' bases can"),
+            "{r}"
+        );
+    }
+    assert_eq!(v["pairs"].as_array().unwrap().len(), 3);
+    assert_eq!(v["trusted"], false);
+    // The flags of the two-robot path are refused with a reason.
+    let (_, _, err) = depthcal(&["calibrate", cell, "--no-refine"]);
     assert!(
-        v["warnings"].to_string().contains("not calibrated"),
-        "{}",
-        v["warnings"]
+        err.contains("--no-refine and --refine-hand-eye are for cells of two robots"),
+        "{err}"
     );
 }

@@ -81,6 +81,9 @@ pub struct CalibrateConfig {
     /// side of the workspace, the clouds laid on each other (the bases 6-77 mm apart) explained the data
     /// better than the truth and were the answer on 4 of 10 wrong low-overlap cells (docs/accuracy.md).
     pub min_base_distance_m: f64,
+    /// Cells of three or more robots: the pose graph over the pairwise results
+    /// ([`crate::calibration::multi_robot`]).
+    pub pose_graph: crate::calibration::pose_graph::PoseGraphConfig,
 }
 
 impl Default for CalibrateConfig {
@@ -142,6 +145,7 @@ impl Default for CalibrateConfig {
             search: SearchConfig::default(),
             pose_scatter: PoseScatterConfig::default(),
             min_base_distance_m: 0.12,
+            pose_graph: Default::default(),
         }
     }
 }
@@ -179,6 +183,7 @@ impl CalibrateConfig {
         self.pose_scatter.validate()?;
         self.search.validate()?;
         crate::error::check::non_negative("min_base_distance_m", self.min_base_distance_m)?;
+        self.pose_graph.validate()?;
         Ok(())
     }
 }
@@ -341,7 +346,7 @@ impl FusedCell {
 }
 
 /// The `[priors]` of `cell.toml`, or none when `cfg.use_priors` is off.
-fn read_priors(cell: &Cell, cfg: &CalibrateConfig) -> Result<CellPriors> {
+pub(crate) fn read_priors(cell: &Cell, cfg: &CalibrateConfig) -> Result<CellPriors> {
     if cfg.use_priors {
         CellPriors::from_manifest_extra(&cell.manifest.extra, &cell.dir.join("cell.toml"))
     } else {
@@ -352,21 +357,82 @@ fn read_priors(cell: &Cell, cfg: &CalibrateConfig) -> Result<CellPriors> {
 /// Fuses both robots' frames in their own base frames (in parallel), reads the priors, and checks each
 /// robot's hand-eye against its depth frames (`cfg.hand_eye_check`).
 pub fn fuse_cell(cell: &Cell, cfg: &CalibrateConfig) -> Result<FusedCell> {
-    let t0 = Instant::now();
     let (reference, other) = robot_pair(cell)?;
     let priors = read_priors(cell, cfg)?;
-    // Both robots at once: each fusion has sequential parts (index builds, voxel merges).
-    let fuse = |r: &CellRobot| -> Result<FusedCloud> { fuse_robot(r, &cfg.fuse, &|_| {}) };
-    let (ref_cloud, other_cloud) = rayon::join(|| fuse(reference), || fuse(other));
-    let (mut ref_cloud, mut other_cloud) = (ref_cloud?, other_cloud?);
+    let fused = fuse_robots(&[reference, other], cfg)?;
+    Ok(fused.pair(0, 1, priors))
+}
+
+/// Each robot's fused cloud (its own base frame) with what was learnt on the way: the output of
+/// [`fuse_robots`], from which [`FusedRobots::pair`] makes the [`FusedCell`] of any two robots.
+#[derive(Clone, Debug)]
+pub struct FusedRobots {
+    /// One fused cloud per robot, in the order given.
+    pub clouds: Vec<FusedCloud>,
+    /// Each robot's stated hand-eye against its own depth frames (empty when `hand_eye_check.enabled` is
+    /// off).
+    pub hand_eye_checks: Vec<HandEyeCheck>,
+    /// Each robot's pose scatter (empty when `pose_scatter.enabled` is off or a robot has no depth views).
+    pub pose_scatter: Vec<PoseScatter>,
+    /// The robots as fused: with the frames moved by their pose corrections and the pose 1-σ widened to the
+    /// scatter where it was applied.
+    pub robots: Vec<CellRobot>,
+    /// Wall times of the fusion, the pose scatter and the hand-eye checks, milliseconds.
+    pub fuse_ms: f64,
+    /// See `fuse_ms`.
+    pub pose_scatter_ms: f64,
+    /// See `fuse_ms`.
+    pub hand_eye_check_ms: f64,
+}
+
+impl FusedRobots {
+    /// The fused cell of robots `i` (the pair's reference) and `j` with `priors`.
+    pub fn pair(&self, i: usize, j: usize, priors: CellPriors) -> FusedCell {
+        FusedCell {
+            reference: self.clouds[i].clone(),
+            other: self.clouds[j].clone(),
+            priors,
+            fuse_ms: self.fuse_ms,
+            hand_eye_checks: pick_two(&self.hand_eye_checks, i, j),
+            hand_eye_check_ms: self.hand_eye_check_ms,
+            pose_scatter: pick_two(&self.pose_scatter, i, j),
+            pose_scatter_ms: self.pose_scatter_ms,
+            robots: pick_two(&self.robots, i, j),
+        }
+    }
+}
+
+/// Items `i` and `j` of `v`, or none when `v` is empty.
+fn pick_two<T: Clone>(v: &[T], i: usize, j: usize) -> Vec<T> {
+    if v.is_empty() {
+        Vec::new()
+    } else {
+        vec![v[i].clone(), v[j].clone()]
+    }
+}
+
+/// Fuses each robot's frames in its own base frame (the robots in parallel, stage by stage): the fusion,
+/// each robot's pose scatter from its own frames (the frames moved by it and fused again where it is
+/// applied), the side each surface was seen from, the range cut ([`CalibrateConfig::max_range_factor`]),
+/// and the check of each robot's stated hand-eye against its depth frames (`cfg.hand_eye_check`).
+pub fn fuse_robots(robots: &[&CellRobot], cfg: &CalibrateConfig) -> Result<FusedRobots> {
+    use rayon::prelude::*;
+    let t0 = Instant::now();
+    // Each fusion has sequential parts (index builds, voxel merges): the robots run side by side.
+    let mut clouds: Vec<FusedCloud> = robots
+        .par_iter()
+        .map(|r| fuse_robot(*r, &cfg.fuse, &|_| {}))
+        .collect::<Result<_>>()?;
     let fuse_ms = t0.elapsed().as_secs_f64() * 1e3;
     // Each robot's frames moved to agree with each other where their poses scatter, then fused again.
     let t_scatter = Instant::now();
     let mut pose_scatter = Vec::new();
-    let mut robots = vec![reference.clone(), other.clone()];
-    if cfg.pose_scatter.enabled && !ref_cloud.views.is_empty() && !other_cloud.views.is_empty() {
-        let estimate =
-            |r: &CellRobot, c: &FusedCloud| -> Result<(PoseScatter, Option<FusedCloud>)> {
+    let mut fused_robots: Vec<CellRobot> = robots.iter().map(|r| (*r).clone()).collect();
+    if cfg.pose_scatter.enabled && clouds.iter().all(|c| !c.views.is_empty()) {
+        let estimates: Vec<(PoseScatter, Option<FusedCloud>)> = robots
+            .par_iter()
+            .zip(clouds.par_iter())
+            .map(|(r, c)| {
                 let s = estimate_pose_scatter(r, &c.views, &cfg.pose_scatter)?;
                 let refused = if s.applied {
                     Some(fuse_robot(&s.corrected(r), &cfg.fuse, &|_| {})?)
@@ -374,12 +440,9 @@ pub fn fuse_cell(cell: &Cell, cfg: &CalibrateConfig) -> Result<FusedCell> {
                     None
                 };
                 Ok((s, refused))
-            };
-        let (a, b) = rayon::join(
-            || estimate(reference, &ref_cloud),
-            || estimate(other, &other_cloud),
-        );
-        for (k, (s, cloud)) in [a?, b?].into_iter().enumerate() {
+            })
+            .collect::<Result<_>>()?;
+        for (k, (s, cloud)) in estimates.into_iter().enumerate() {
             if let Some(c) = cloud {
                 log::info!(
                     "robot {}: poses scatter {:.2} mm / {:.3}° (RMS per axis); frames moved and fused again",
@@ -387,22 +450,17 @@ pub fn fuse_cell(cell: &Cell, cfg: &CalibrateConfig) -> Result<FusedCell> {
                     s.scatter_mm,
                     s.scatter_deg
                 );
-                *(if k == 0 {
-                    &mut ref_cloud
-                } else {
-                    &mut other_cloud
-                }) = c;
+                clouds[k] = c;
             }
-            robots[k] = s.corrected(&robots[k]);
+            fused_robots[k] = s.corrected(&fused_robots[k]);
             pose_scatter.push(s);
         }
     }
     let pose_scatter_ms = t_scatter.elapsed().as_secs_f64() * 1e3;
-    // The side each surface was seen from travels with the points as their normals.
-    ref_cloud.make_sided();
-    other_cloud.make_sided();
-    if let Some(f) = cfg.max_range_factor {
-        for (c, r) in [(&mut ref_cloud, reference), (&mut other_cloud, other)] {
+    for (c, r) in clouds.iter_mut().zip(robots) {
+        // The side each surface was seen from travels with the points as their normals.
+        c.make_sided();
+        if let Some(f) = cfg.max_range_factor {
             let dropped = keep_within_range(c, f);
             if dropped > 0 {
                 log::info!(
@@ -416,31 +474,28 @@ pub fn fuse_cell(cell: &Cell, cfg: &CalibrateConfig) -> Result<FusedCell> {
     let hand_eye_checks = if cfg.hand_eye_check.enabled {
         // On the cell's own poses: the moved frames could hide a hand-eye that is off. Where the poses
         // scatter, the test allows for what the scatter alone makes the depth ask for.
-        let check = |r: &CellRobot, c: &FusedCloud, k: usize| {
-            let views = (!c.views.is_empty()).then_some(c.views.as_slice());
-            let scatter = pose_scatter
-                .get(k)
-                .and_then(|s: &PoseScatter| s.hand_eye_covariance.as_ref());
-            check_hand_eye_under_scatter(r, views, &cfg.hand_eye_check, scatter)
-        };
-        let (a, b) = rayon::join(
-            || check(reference, &ref_cloud, 0),
-            || check(other, &other_cloud, 1),
-        );
-        vec![a?, b?]
+        (0..robots.len())
+            .into_par_iter()
+            .map(|k| {
+                let c = &clouds[k];
+                let views = (!c.views.is_empty()).then_some(c.views.as_slice());
+                let scatter = pose_scatter
+                    .get(k)
+                    .and_then(|s: &PoseScatter| s.hand_eye_covariance.as_ref());
+                check_hand_eye_under_scatter(robots[k], views, &cfg.hand_eye_check, scatter)
+            })
+            .collect::<Result<Vec<_>>>()?
     } else {
         Vec::new()
     };
-    Ok(FusedCell {
-        reference: ref_cloud,
-        other: other_cloud,
-        priors,
-        fuse_ms,
+    Ok(FusedRobots {
+        clouds,
         hand_eye_checks,
-        hand_eye_check_ms: t1.elapsed().as_secs_f64() * 1e3,
         pose_scatter,
+        robots: fused_robots,
+        fuse_ms,
         pose_scatter_ms,
-        robots,
+        hand_eye_check_ms: t1.elapsed().as_secs_f64() * 1e3,
     })
 }
 
@@ -566,7 +621,7 @@ pub fn calibrate_request(req: CalibrateRequest) -> Result<(Calibration, FusedCel
         .collect();
     if !left_out.is_empty() {
         c.warnings.push(format!(
-            "the cell names {} robots and calibrate solves one pair: {:?} against the reference {:?}; not calibrated: {:?}",
+            "the cell names {} robots and this call solves one pair: {:?} against the reference {:?}; not calibrated: {:?} (`depthcal calibrate` and calibration::multi_robot solve every robot)",
             cell.robots.len(),
             c.other,
             c.reference,
@@ -599,10 +654,26 @@ pub fn refine_cell(
     refine: bool,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Calibration> {
-    let (reference, other) = match fused.robots.as_slice() {
+    let pair = match fused.robots.as_slice() {
         [a, b] => (a, b),
         _ => robot_pair(cell)?,
     };
+    let truth = cell.ground_truth()?.and_then(|g| g.t_base1_base2);
+    refine_pair(pair, fused, initializer, cfg, refine, truth, progress)
+}
+
+/// [`refine_cell`] for any two robots of a cell: `pair` is (the pair's reference, the other) as fused in
+/// `fused`, `truth` their true `T_reference_other` when known.
+pub fn refine_pair(
+    pair: (&CellRobot, &CellRobot),
+    fused: &FusedCell,
+    initializer: &dyn Initializer,
+    cfg: &CalibrateConfig,
+    refine: bool,
+    truth: Option<Isometry3<f64>>,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Calibration> {
+    let (reference, other) = pair;
     let mut timer = StageTimer::new();
     let priors = fused.priors.constraint();
     // The search also drops hypotheses whose bases would share one footprint.
@@ -616,7 +687,6 @@ pub fn refine_cell(
         seed: cfg.seed,
     })?;
     timer.lap("initialize");
-    let truth = cell.ground_truth()?.and_then(|g| g.t_base1_base2);
     let mut out = Calibration {
         reference: reference.name.clone(),
         other: other.name.clone(),

@@ -499,6 +499,37 @@ impl GroundTruth {
         }))
     }
 
+    /// The true `T_reference_robot` of robot `name` against robot `reference` when the truth knows it: from
+    /// the `robots` list (each entry's `name` and `T_base1_base`, as the simulator writes it) when it holds
+    /// both, the identity when the two are one robot, else `T_base1_base2` when `reference` and `name` are
+    /// the manifest's reference and first other robot (`first_other`).
+    pub fn base_of(
+        &self,
+        name: &str,
+        reference: &str,
+        first_other: &str,
+    ) -> Option<Isometry3<f64>> {
+        if name == reference {
+            return Some(Isometry3::identity());
+        }
+        let listed = |n: &str| -> Option<Isometry3<f64>> {
+            let entry = self
+                .extra
+                .get("robots")?
+                .as_array()?
+                .iter()
+                .find(|r| r.get("name").and_then(|v| v.as_str()) == Some(n))?;
+            let m = matrix_from_json(entry.get("T_base1_base")?).ok()?;
+            isometry_from_rows(&m, "T_base1_base").ok()
+        };
+        if let (Some(a), Some(b)) = (listed(reference), listed(name)) {
+            return Some(a.inverse() * b);
+        }
+        (name == first_other)
+            .then_some(self.t_base1_base2)
+            .flatten()
+    }
+
     /// Writes `<dir>/ground_truth.json` atomically.
     pub fn write(&self, dir: impl AsRef<Path>) -> Result<()> {
         let path = dir.as_ref().join(GROUND_TRUTH_FILE);

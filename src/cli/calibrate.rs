@@ -176,6 +176,9 @@ fn write_outputs(
 pub fn run(a: Args) -> Result<()> {
     let start = Instant::now();
     let job = prepare(&a)?;
+    if job.cell.robots.len() > 2 {
+        return run_robots(&a, &job, start);
+    }
     let (c, fused, hand_eyes) = solve(&a, &job)?;
     for w in &c.warnings {
         eprintln!("warning: {w}");
@@ -374,15 +377,25 @@ fn print_text(c: &Calibration, report: &CalibrationReport, frames: &Frames, tota
 /// The transform: matrix, xyz + quaternion, KUKA, the ROS commands and its 1-σ.
 fn print_transform(c: &Calibration, frames: &Frames) {
     let t = &c.transform;
-    let xq = isometry_to_xyzquat(t);
-    let kuka = KukaPose::from_isometry(t);
-    let sd: Vec<f64> = (0..6)
-        .map(|k| c.covariance[(k, k)].max(0.0).sqrt())
-        .collect();
     println!(
         "T_base1_base2: {} base -> {} base ({} frames / {} frames, method {})",
         c.other, c.reference, c.frames[1], c.frames[0], c.method
     );
+    print_pose_lines(t, &c.covariance, frames, true, "");
+}
+
+/// A pose's lines: the matrix, xyz + quaternion, KUKA, the ROS commands (ROS 1 with `ros1`) and its 1-σ
+/// from `covariance` (`sigma_note` after it).
+fn print_pose_lines(
+    t: &nalgebra::Isometry3<f64>,
+    covariance: &nalgebra::Matrix6<f64>,
+    frames: &Frames,
+    ros1: bool,
+    sigma_note: &str,
+) {
+    let xq = isometry_to_xyzquat(t);
+    let kuka = KukaPose::from_isometry(t);
+    let sd: Vec<f64> = (0..6).map(|k| covariance[(k, k)].max(0.0).sqrt()).collect();
     println!("{}", matrix4_text(t));
     println!(
         "xyz (m)         {:.6} {:.6} {:.6}   quaternion (x y z w) {:.8} {:.8} {:.8} {:.8}",
@@ -393,9 +406,11 @@ fn print_transform(c: &Calibration, frames: &Frames) {
         kuka.x_mm, kuka.y_mm, kuka.z_mm, kuka.a_deg, kuka.b_deg, kuka.c_deg
     );
     println!("ROS 2           {}", ros2_static_tf_command(t, frames));
-    println!("ROS 1           {}", ros1_static_tf_command(t, frames));
+    if ros1 {
+        println!("ROS 1           {}", ros1_static_tf_command(t, frames));
+    }
     println!(
-        "1-sigma         rotation {:.4} {:.4} {:.4} deg, translation {:.3} {:.3} {:.3} mm",
+        "1-sigma         rotation {:.4} {:.4} {:.4} deg, translation {:.3} {:.3} {:.3} mm{sigma_note}",
         sd[0].to_degrees(),
         sd[1].to_degrees(),
         sd[2].to_degrees(),
@@ -403,6 +418,21 @@ fn print_transform(c: &Calibration, frames: &Frames) {
         sd[4] * 1e3,
         sd[5] * 1e3
     );
+}
+
+/// The trust verdict with its reasons and suggestions (`scope` after "yes").
+fn print_verdict(trust: &depthcal::registration::Trust, scope: &str) {
+    if trust.trusted {
+        println!("trusted         yes{scope}");
+    } else {
+        println!("trusted         NO");
+        for r in &trust.reasons {
+            println!("  because       {r}");
+        }
+        for s in &trust.suggestions {
+            println!("  try           {s}");
+        }
+    }
 }
 
 /// The refinement's quality figures and the priors used.
@@ -591,15 +621,146 @@ fn print_checks(c: &Calibration) {
             matrix4_text(&x.runner_up)
         );
     }
-    if c.trust.trusted {
-        println!("trusted         yes");
+    print_verdict(&c.trust, "");
+}
+
+/// A cell of three or more robots: every pair, then the pose graph (`calibration::multi_robot`). The
+/// two-robot report shows the reference and the first other robot in the joint solution; `robots` and
+/// `pairs` hold the rest.
+fn run_robots(a: &Args, job: &Job, start: Instant) -> Result<()> {
+    let n = job.cell.robots.len();
+    if job.method != Method::Depth {
+        anyhow::bail!(
+            "the cell names {n} robots: calibrate solves cells of more than two robots from depth (--method depth); --init and the image methods give one pair"
+        );
+    }
+    if a.no_refine || a.refine_hand_eye {
+        anyhow::bail!(
+            "the cell names {n} robots: --no-refine and --refine-hand-eye are for cells of two robots"
+        );
+    }
+    if a.output.is_some() || a.report.is_some() {
+        anyhow::bail!(
+            "the cell names {n} robots: --output and --report are not built for more than two robots yet; --json prints every robot's pose"
+        );
+    }
+    let init = depthcal::methods::build(Method::Depth, &job.cell, &job.inputs, &job.cfg)?.0;
+    let pb = spinner("opening the cell");
+    let mut progress = |s: &str| pb.set_message(s.to_string());
+    let out = depthcal::calibration::multi_robot::calibrate_robots(
+        &job.cell,
+        init.as_ref(),
+        &job.cfg,
+        &mut progress,
+    );
+    pb.finish_and_clear();
+    let (c, _fused) = out.with_context(|| format!("calibrating {}", a.cell.display()))?;
+    for w in &c.warnings {
+        eprintln!("warning: {w}");
+    }
+    let total_ms = start.elapsed().as_secs_f64() * 1e3;
+    let frame_ids: Vec<String> = c
+        .robots
+        .iter()
+        .map(|r| job.cell.frame_id(&r.name))
+        .collect();
+    let report = CalibrationReport::with_robots(
+        &c,
+        &a.cell.display().to_string(),
+        &job.frames,
+        &frame_ids,
+        total_ms,
+    );
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
-        println!("trusted         NO");
-        for r in &c.trust.reasons {
-            println!("  because       {r}");
-        }
-        for s in &c.trust.suggestions {
-            println!("  try           {s}");
+        print_robots(&c, &report, &job.frames, total_ms);
+    }
+    super::gate(&c.trust)
+}
+
+/// The human-readable result of a cell of three or more robots: each robot's base, each pair against the
+/// joint solution, and the verdict.
+fn print_robots(
+    c: &depthcal::calibration::multi_robot::CellCalibration,
+    report: &CalibrationReport,
+    frames: &Frames,
+    total_ms: f64,
+) {
+    println!(
+        "{} robots, reference {:?} (its base is the frame of every pose below)",
+        c.robots.len() + 1,
+        c.reference
+    );
+    for (r, rr) in c.robots.iter().zip(report.robots.iter().flatten()) {
+        println!();
+        match (&r.transform, &r.covariance) {
+            (Some(t), Some(cov)) => {
+                println!(
+                    "T_{}_{}: {} base -> {} base{}",
+                    c.reference,
+                    r.name,
+                    r.name,
+                    c.reference,
+                    if r.trust.trusted {
+                        ""
+                    } else {
+                        " (NOT trusted)"
+                    }
+                );
+                let f = Frames {
+                    parent: frames.parent.clone(),
+                    child: rr.frame_id.clone(),
+                };
+                print_pose_lines(t, cov, &f, false, " (joint solution)");
+                println!("from pairs      {}", rr.pairs_used.join(", "));
+                if let Some((deg, m)) = r.error_vs_truth {
+                    println!(
+                        "vs ground truth {deg:.4} deg / {:.3} mm{}",
+                        m * 1e3,
+                        r.normalised_error.map_or(String::new(), |z| format!(
+                            " (normalised: rotation {:.2}, translation {:.2})",
+                            z.rotation, z.translation
+                        ))
+                    );
+                }
+            }
+            _ => {
+                println!("T_{}_{}: NOT calibrated", c.reference, r.name);
+                for why in &r.trust.reasons {
+                    println!("  because       {why}");
+                }
+            }
         }
     }
+    println!();
+    println!("pairs (each its own two-robot calibration, against the joint solution):");
+    for p in report.pairs.iter().flatten() {
+        let residual = match (p.residual_deg, p.residual_m) {
+            (Some(d), Some(m)) => format!("{d:.3} deg / {:.2} mm off the joint solution", m * 1e3),
+            _ => "no joint pose to compare".to_string(),
+        };
+        println!(
+            "  {} - {}: {}, fitness {}, {}, {residual}{}",
+            p.reference,
+            p.other,
+            if p.trusted { "trusted" } else { "not trusted" },
+            p.fitness.map_or("-".to_string(), |f| format!("{f:.3}")),
+            p.verdict.name(),
+            p.loop_error
+                .map_or(String::new(), |z| format!(", loop error {z:.2}"))
+        );
+        if !p.trusted {
+            for r in &p.reasons {
+                println!("      because {r}");
+            }
+        }
+    }
+    let times: Vec<String> = c
+        .timings_ms
+        .iter()
+        .map(|(k, v)| format!("{k} {v:.0}"))
+        .collect();
+    println!("timings (ms)    {}  total {total_ms:.0}", times.join(", "));
+    print_verdict(&c.trust, " (every robot)");
 }

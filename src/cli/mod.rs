@@ -58,7 +58,7 @@ enum Command {
     Match(match_cmd::Args),
     /// Find ArUco / AprilTag markers in images: ids and sub-pixel corners (needs the `vision` feature).
     Markers(markers::Args),
-    /// Write a simulated two-robot cell dataset (depth, colour, poses) with ground truth.
+    /// Write a simulated cell dataset of two or more robots (depth, colour, poses) with ground truth.
     Simulate(simulate::Args),
     /// Take frames from a connected RealSense camera into a cell dataset (cargo feature `realsense`).
     Capture(capture::Args),

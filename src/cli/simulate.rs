@@ -1,4 +1,4 @@
-//! `depthcal simulate`: write a simulated two-robot cell dataset with ground truth.
+//! `depthcal simulate`: write a simulated cell dataset of two or more robots with ground truth.
 
 use clap::Args as ClapArgs;
 use depthcal::sim::{NoiseLevel, Resolution};
@@ -18,9 +18,14 @@ pub struct Args {
     /// Depth noise: none, low, default, high, or a factor of the default magnitudes.
     #[arg(long)]
     pub noise: Option<NoiseLevel>,
-    /// How much of the scene both robots see, 0-1 (default 0.7).
+    /// How much of the scene both robots see, 0-1 (default 0.7); with more robots, what two robots share
+    /// on average over the pairs.
     #[arg(long)]
     pub overlap: Option<f64>,
+    /// Number of robots, 2-8 (default 2): the reference at 180 degrees round the table, the others evenly
+    /// spaced; named left, right, robot3, robot4, ... (the config's `robot_names` if it names as many).
+    #[arg(long, value_name = "N")]
+    pub robots: Option<usize>,
     /// Depth resolution: 640x480 or 1280x720.
     #[arg(long)]
     pub resolution: Option<Resolution>,
@@ -106,6 +111,17 @@ fn settings(a: &Args) -> anyhow::Result<depthcal::sim::SimConfig> {
     }
     if let Some(k) = a.frames {
         cfg.frames = k;
+    }
+    if let Some(n) = a.robots {
+        if !(2..=depthcal::sim::SimConfig::MAX_ROBOTS).contains(&n) {
+            anyhow::bail!(
+                "--robots {n}: a simulated cell holds 2 to {} robots",
+                depthcal::sim::SimConfig::MAX_ROBOTS
+            );
+        }
+        if cfg.robot_names.len() != n {
+            cfg.robot_names = depthcal::sim::SimConfig::default_robot_names(n);
+        }
     }
     if let Some(n) = a.noise {
         cfg.noise_level = n;
@@ -244,11 +260,12 @@ fn print_text(
     let t = cell.t_base1_base2();
     let dist = t.translation.vector.norm();
     let (_, _, yaw) = t.rotation.euler_angles();
+    let others: Vec<&str> = cell.robots[1..].iter().map(|r| r.name.as_str()).collect();
     println!(
         "wrote {}: robots {} (reference) and {}, {} frames each at {}, {} objects; {} files, {:.1} MB in {:.2} s",
         a.out_dir.display(),
         cell.robots[0].name,
-        cell.robots[1].name,
+        others.join(", "),
         cfg.frames,
         cfg.resolution,
         cell.scene.objects.len(),
@@ -261,12 +278,31 @@ fn print_text(
         dist,
         yaw.to_degrees()
     );
+    for r in &cell.robots[2..] {
+        let t = cell.robots[0].t_world_base.inverse() * r.t_world_base;
+        let (_, _, yaw) = t.rotation.euler_angles();
+        println!(
+            "true T_{}_{}: base distance {:.3} m, yaw {:.2} deg (ground_truth.json, robots)",
+            cell.robots[0].name,
+            r.name,
+            t.translation.vector.norm(),
+            yaw.to_degrees()
+        );
+    }
+    let shared: Vec<String> = cell
+        .robots
+        .iter()
+        .zip(&cell.shared)
+        .map(|(r, f)| format!("{:.0}% of what {} sees", f * 100.0, r.name))
+        .collect();
+    let with = if cell.robots.len() > 2 {
+        " (with any other robot)"
+    } else {
+        ""
+    };
     println!(
-        "shared scene: {:.0}% of what {} sees, {:.0}% of what {} sees (overlap asked: {:.0}%)",
-        cell.shared[0] * 100.0,
-        cell.robots[0].name,
-        cell.shared[1] * 100.0,
-        cell.robots[1].name,
+        "shared scene{with}: {} (overlap asked: {:.0}%)",
+        shared.join(", "),
         cfg.overlap * 100.0
     );
 }

@@ -3,6 +3,7 @@
 use super::pose::{matrix6_rows, AmbiguityReport, ErrorReport, PoseReport, SigmaReport, Timings};
 use crate::calibration::consistency::RobotConsistency;
 use crate::calibration::handeye::depth::check::HandEyeCheck;
+use crate::calibration::multi_robot::CellCalibration;
 use crate::calibration::robot_to_robot::{Calibration, FreeSpaceCheck};
 use crate::calibration::uncertainty::NormalisedError;
 use crate::geometry::robot_formats::{ros2_static_tf_command, Frames};
@@ -137,6 +138,14 @@ pub struct CalibrationReport {
     /// together (absent otherwise).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub joint_hand_eye: Option<super::JointHandEyeReport>,
+    /// Cells of three or more robots: every robot but the reference, its base in the joint solution (absent
+    /// for two robots).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub robots: Option<Vec<super::robots::RobotBaseReport>>,
+    /// Cells of three or more robots: every pair's own result against the joint solution (absent for two
+    /// robots).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pairs: Option<Vec<super::robots::PairReport>>,
 }
 
 /// One hypothesis the refinement refined and judged at full resolution.
@@ -233,6 +242,32 @@ impl CalibrationReport {
             total_ms,
             hand_eye_refinement: None,
             joint_hand_eye: None,
+            robots: None,
+            pairs: None,
         }
+    }
+
+    /// The report of a cell of three or more robots: the two-robot fields show
+    /// [`CellCalibration::headline`] (the reference and the first other robot in the joint solution, the
+    /// whole cell's trust), `robots` every robot's base and `pairs` every pair. `frame_ids` are the other
+    /// robots' base frame ids, in the order of `c.robots`.
+    pub fn with_robots(
+        c: &CellCalibration,
+        cell: &str,
+        frames: &Frames,
+        frame_ids: &[String],
+        total_ms: f64,
+    ) -> Self {
+        let mut r = CalibrationReport::new(&c.headline(), cell, frames, total_ms);
+        let names = super::robots::pair_names(c);
+        r.robots = Some(
+            c.robots
+                .iter()
+                .zip(frame_ids)
+                .map(|(b, f)| super::robots::RobotBaseReport::new(b, &frames.parent, f, &names))
+                .collect(),
+        );
+        r.pairs = Some(c.pairs.iter().map(super::robots::PairReport::new).collect());
+        r
     }
 }

@@ -21,6 +21,7 @@ pub mod matching;
 pub mod plan;
 pub mod pose;
 pub mod registration;
+pub mod robots;
 pub mod simulation;
 
 pub use calibration::{CalibrationReport, CALIBRATION_SCHEMA};

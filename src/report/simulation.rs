@@ -30,9 +30,9 @@ pub struct SimulationReport {
     pub t_base1_base2: PoseReport,
     /// Distance between the two bases, metres.
     pub base_distance_m: f64,
-    /// Fraction of the surface each robot's views see that the other robot's views also see, 0–1
-    /// (reference robot first).
-    pub shared_fraction: [f64; 2],
+    /// Per robot (reference first): the fraction of the surface its views see that another robot's views
+    /// also see, 0–1.
+    pub shared_fraction: Vec<f64>,
     /// The view spread chosen for the asked overlap, 0–1.
     pub view_spread: f64,
     /// Files written.
@@ -64,7 +64,7 @@ impl SimulationReport {
             objects: cell.scene.objects.len(),
             t_base1_base2: PoseReport::new(&t),
             base_distance_m: t.translation.vector.norm(),
-            shared_fraction: cell.shared,
+            shared_fraction: cell.shared.clone(),
             view_spread: cell.view_spread,
             files: stats.files,
             bytes: stats.bytes,

@@ -1,4 +1,4 @@
-//! Simulated two-robot cells: the layout of the robot bases around the table, each robot's hand-eye and
+//! Simulated cells of two or more robots (`robot_names`, 2 to 8): the layout of the robot bases around the table, each robot's hand-eye and
 //! flange poses, rendering of every frame, and writing the whole as a `depthcal-cell/1` dataset with
 //! `ground_truth.json`.
 //!
@@ -47,7 +47,8 @@ pub struct SimConfig {
     /// An explicit noise model (overrides `noise_level`).
     pub noise: Option<NoiseConfig>,
     /// How much of the scene both robots see, 0–1 (default 0.7): the fraction of the surface each robot's
-    /// views see that the other robot's views also see (1 cm voxels, mean of both robots). The simulator
+    /// views see that the other robot's views also see (1 cm voxels, mean of both robots; with more robots,
+    /// the mean over every robot and every other robot). The simulator
     /// places the views to meet it: a view spread from 0 (each robot looks at its own side of the workspace,
     /// close and steep, within ±25° of azimuth) to 1 (both circle the table at ±145°, from the whole distance
     /// and elevation ranges) is chosen by bisection on a sparse ray cast. Where the scene cannot reach the
@@ -56,10 +57,13 @@ pub struct SimConfig {
     pub overlap: f64,
     /// The table and its objects.
     pub scene: SceneConfig,
-    /// Robot names; the first is the reference (default `left`, `right`).
-    pub robot_names: [String; 2],
+    /// Robot names, 2 to 8 of them; the first is the reference (default `left`, `right`; see
+    /// [`SimConfig::default_robot_names`]). With more than two, the bases stand evenly round the table: the
+    /// reference at azimuth 180°, robot `i` at 180° + 360°·i/N, each ± `base_azimuth_jitter_deg` (at most a
+    /// quarter of the spacing).
+    pub robot_names: Vec<String>,
     /// Nominal distance between the two bases, metres (default 1.2); each base stands at half of it from the
-    /// table centre, each ±`base_distance_jitter_m`/2.
+    /// table centre, each ±`base_distance_jitter_m`/2 (with more robots, every base at that radius).
     pub base_distance_m: f64,
     /// Random variation of the base distance, metres (default 0.1).
     pub base_distance_jitter_m: f64,
@@ -103,7 +107,7 @@ impl Default for SimConfig {
             noise: None,
             overlap: 0.7,
             scene: SceneConfig::default(),
-            robot_names: ["left".into(), "right".into()],
+            robot_names: SimConfig::default_robot_names(2),
             base_distance_m: 1.2,
             base_distance_jitter_m: 0.1,
             base_azimuth_jitter_deg: 25.0,
@@ -122,6 +126,20 @@ impl Default for SimConfig {
 }
 
 impl SimConfig {
+    /// Most robots a simulated cell holds.
+    pub const MAX_ROBOTS: usize = 8;
+
+    /// The default names of `n` robots: `left`, `right`, then `robot3`, `robot4`, ….
+    pub fn default_robot_names(n: usize) -> Vec<String> {
+        (0..n)
+            .map(|i| match i {
+                0 => "left".to_string(),
+                1 => "right".to_string(),
+                _ => format!("robot{}", i + 1),
+            })
+            .collect()
+    }
+
     /// Checks the ranges; the error names the field.
     pub fn validate(&self) -> Result<()> {
         let bad = |field: &str, msg: String| {
@@ -148,16 +166,22 @@ impl SimConfig {
                 format!("must be in [0, 1], found {}", self.overlap),
             );
         }
-        if self.robot_names[0] == self.robot_names[1]
-            || self
-                .robot_names
+        let names = &self.robot_names;
+        let distinct = names
+            .iter()
+            .enumerate()
+            .all(|(i, n)| !names[..i].contains(n));
+        if !(2..=Self::MAX_ROBOTS).contains(&names.len())
+            || !distinct
+            || names
                 .iter()
                 .any(|n| n.is_empty() || n.contains(['/', '\\']) || n.starts_with('.'))
         {
             return bad(
                 "robot_names",
                 format!(
-                    "need two different names usable as directory names, found {:?}",
+                    "need 2 to {} different names usable as directory names, found {:?}",
+                    Self::MAX_ROBOTS,
                     self.robot_names
                 ),
             );
@@ -260,13 +284,13 @@ pub struct SimCell {
     pub noise: NoiseConfig,
     /// The scene.
     pub scene: Scene,
-    /// The two robots; the first is the reference.
+    /// The robots (two or more); the first is the reference.
     pub robots: Vec<SimRobot>,
     /// The view spread chosen for `config.overlap`, 0–1 (see [`SimConfig::overlap`]).
     pub view_spread: f64,
-    /// Fraction of the surface each robot's views see that the other robot's views also see (2 cm voxels,
-    /// noise-free sparse ray cast; reference robot first).
-    pub shared: [f64; 2],
+    /// Per robot (reference first): the fraction of the surface its views see that another robot's views
+    /// also see, the mean over the other robots (1 cm voxels, noise-free sparse ray cast).
+    pub shared: Vec<f64>,
 }
 
 /// Sizes of a written dataset.
@@ -373,31 +397,33 @@ impl ViewDraw {
 
 /// The view spread in 0–1 whose shared fraction (mean of both robots') is closest to `target`, by bisection
 /// on `shared_at` (which grows with the spread, up to noise); returns it with its shared fractions.
-fn solve_spread(target: f64, shared_at: impl Fn(f64) -> [f64; 2]) -> (f64, [f64; 2]) {
-    let mean = |f: [f64; 2]| 0.5 * (f[0] + f[1]);
+fn solve_spread(target: f64, shared_at: impl Fn(f64) -> Vec<f64>) -> (f64, Vec<f64>) {
+    let mean = |f: &[f64]| f.iter().sum::<f64>() / f.len().max(1) as f64;
     let mut best = (1.0, shared_at(1.0));
-    let consider = |s: f64, f: [f64; 2], best: &mut (f64, [f64; 2])| {
-        if (mean(f) - target).abs() < (mean(best.1) - target).abs() {
+    let consider = |s: f64, f: Vec<f64>, best: &mut (f64, Vec<f64>)| {
+        if (mean(&f) - target).abs() < (mean(&best.1) - target).abs() {
             *best = (s, f);
         }
     };
-    if mean(best.1) <= target {
+    if mean(&best.1) <= target {
         return best;
     }
     let f0 = shared_at(0.0);
+    let m0 = mean(&f0);
     consider(0.0, f0, &mut best);
-    if mean(f0) >= target {
+    if m0 >= target {
         return best;
     }
     let (mut lo, mut hi) = (0.0, 1.0);
     for _ in 0..8 {
         let mid = 0.5 * (lo + hi);
         let f = shared_at(mid);
+        let m = mean(&f);
         consider(mid, f, &mut best);
-        if (mean(f) - target).abs() < 0.01 {
+        if (m - target).abs() < 0.01 {
             break;
         }
-        if mean(f) < target {
+        if m < target {
             lo = mid;
         } else {
             hi = mid;
@@ -419,11 +445,28 @@ impl SimCell {
         camera.max_depth_m = camera.max_depth_m.min(cfg.depth_scale * u16::MAX as f64);
         let mut layout = Rng::stream(seed, 1);
         let az_jit = cfg.base_azimuth_jitter_deg.to_radians();
-        let phis = [PI, layout.uniform(-az_jit, az_jit)];
+        let n = cfg.robot_names.len();
+        // The reference at 180°, the others evenly round the table (two robots: facing each other).
+        let az_jit = if n > 2 {
+            az_jit.min(0.25 * 2.0 * PI / n as f64)
+        } else {
+            az_jit
+        };
+        let phis: Vec<f64> = std::iter::once(PI)
+            .chain((1..n).map(|i| {
+                let nominal = PI + 2.0 * PI * i as f64 / n as f64;
+                let nominal = if nominal >= 2.0 * PI {
+                    nominal - 2.0 * PI
+                } else {
+                    nominal
+                };
+                nominal + layout.uniform(-az_jit, az_jit)
+            }))
+            .collect();
         let yaw_range = cfg.base_yaw_range_deg.to_radians();
         let width = ((cfg.frames.max(1) - 1).to_string().len()).max(3);
-        let mut robots = Vec::with_capacity(2);
-        let mut layouts = Vec::with_capacity(2);
+        let mut robots = Vec::with_capacity(n);
+        let mut layouts = Vec::with_capacity(n);
         for (i, &phi) in phis.iter().enumerate() {
             let r =
                 cfg.base_distance_m / 2.0 + layout.uniform(-0.5, 0.5) * cfg.base_distance_jitter_m;
@@ -468,19 +511,22 @@ impl SimCell {
         }
         // Choose the view spread whose shared fraction is closest to the requested overlap, then write the
         // poses as they read back from the KUKA pose file.
-        let views_at = |s: f64| -> [Vec<Isometry3<f64>>; 2] {
-            [0, 1].map(|i| {
-                let (phi, draws) = &layouts[i];
-                draws
-                    .iter()
-                    .enumerate()
-                    .map(|(k, d)| d.view(cfg, *phi, s, k))
-                    .collect()
-            })
+        let views_at = |s: f64| -> Vec<Vec<Isometry3<f64>>> {
+            layouts
+                .iter()
+                .map(|(phi, draws)| {
+                    draws
+                        .iter()
+                        .enumerate()
+                        .map(|(k, d)| d.view(cfg, *phi, s, k))
+                        .collect()
+                })
+                .collect()
         };
         let shared_at = |s: f64| {
             let v = views_at(s);
-            shared_fractions(&scene, &camera, [&v[0], &v[1]], &SharedConfig::default())
+            let sets: Vec<&[Isometry3<f64>]> = v.iter().map(|x| x.as_slice()).collect();
+            shared_fractions(&scene, &camera, &sets, &SharedConfig::default())
         };
         let (spread, shared) = solve_spread(cfg.overlap, shared_at);
         let views = views_at(spread);
@@ -666,14 +712,14 @@ impl SimCell {
             "workspace_base1".into(),
             json!([ws.min[0], ws.min[1], ws.min[2], ws.max[0], ws.max[1], ws.max[2]]),
         );
-        extra.insert(
-            "shared_fraction".into(),
-            json!({
-                self.robots[0].name.clone(): self.shared[0],
-                self.robots[1].name.clone(): self.shared[1],
-                "view_spread": self.view_spread,
-            }),
-        );
+        let mut shared: serde_json::Map<String, Value> = self
+            .robots
+            .iter()
+            .zip(&self.shared)
+            .map(|(r, f)| (r.name.clone(), json!(f)))
+            .collect();
+        shared.insert("view_spread".into(), json!(self.view_spread));
+        extra.insert("shared_fraction".into(), Value::Object(shared));
         if let Some(b) = &self.scene.board {
             // The board pose in the world and in each robot's base (T_base_board = T_world_base⁻¹ · T_world_board).
             let in_bases: serde_json::Map<String, Value> = self

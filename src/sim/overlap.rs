@@ -84,17 +84,30 @@ fn fraction_near(a: &HashSet<Key>, b: &HashSet<Key>) -> f64 {
     near as f64 / a.len() as f64
 }
 
-/// For two sets of camera poses (`T_world_cam`) of the same camera model: the fraction of the surface each
-/// set sees (in voxels of `cfg.voxel_m`) that the other set also sees, within one voxel. Deterministic.
+/// For sets of camera poses (`T_world_cam`) of the same camera model, one set per robot: per set, the
+/// fraction of the surface it sees (in voxels of `cfg.voxel_m`) that another set also sees within one voxel,
+/// averaged over the other sets (each pair of robots is what a calibration registers). With two sets,
+/// what each shares with the other. Deterministic.
 pub fn shared_fractions(
     scene: &Scene,
     cam: &SimCamera,
-    views: [&[Isometry3<f64>]; 2],
+    views: &[&[Isometry3<f64>]],
     cfg: &SharedConfig,
-) -> [f64; 2] {
-    let a = seen_voxels(scene, cam, views[0], cfg);
-    let b = seen_voxels(scene, cam, views[1], cfg);
-    [fraction_near(&a, &b), fraction_near(&b, &a)]
+) -> Vec<f64> {
+    let seen: Vec<HashSet<Key>> = views
+        .iter()
+        .map(|v| seen_voxels(scene, cam, v, cfg))
+        .collect();
+    let n = seen.len();
+    (0..n)
+        .map(|i| {
+            let sum: f64 = (0..n)
+                .filter(|&j| j != i)
+                .map(|j| fraction_near(&seen[i], &seen[j]))
+                .sum();
+            sum / (n.max(2) - 1) as f64
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -129,17 +142,23 @@ mod tests {
         let cam = SimCamera::d435(Resolution::Vga);
         let cfg = SharedConfig::default();
         let a = [looking_down(-1.0, 0.0, 0.5)];
-        let s = shared_fractions(&scene, &cam, [&a, &a], &cfg);
+        let s = shared_fractions(&scene, &cam, &[&a, &a], &cfg);
         assert_eq!(s, [1.0, 1.0]);
         // Footprint at 0.5 m: about 0.84 m x 0.63 m; 1.5 m apart: disjoint.
         let b = [looking_down(0.5, 0.0, 0.5)];
-        let s = shared_fractions(&scene, &cam, [&a, &b], &cfg);
+        let s = shared_fractions(&scene, &cam, &[&a, &b], &cfg);
         assert_eq!(s, [0.0, 0.0]);
         // Half a footprint apart along x: about half shared.
         let c = [looking_down(-1.0 + 0.42, 0.0, 0.5)];
-        let s = shared_fractions(&scene, &cam, [&a, &c], &cfg);
-        for f in s {
+        let s = shared_fractions(&scene, &cam, &[&a, &c], &cfg);
+        for f in &s {
             assert!((f - 0.5).abs() < 0.06, "{s:?}");
         }
+        // Three robots: each the mean over the other two. `b` shares nothing with `a` or `c`.
+        let s = shared_fractions(&scene, &cam, &[&a, &b, &c], &cfg);
+        assert_eq!(s.len(), 3);
+        assert!((s[0] - 0.25).abs() < 0.04, "{s:?}");
+        assert_eq!(s[1], 0.0, "{s:?}");
+        assert!((s[2] - 0.25).abs() < 0.04, "{s:?}");
     }
 }

@@ -1193,6 +1193,10 @@ pub struct ForeignConfig {
     pub pedestal: bool,
     /// Where the cameras look (default: near the table centre).
     pub aim: Aim,
+    /// More robots beside the table's long sides (at most 2: the third at its -y side, the fourth at its +y
+    /// side, each facing the table, upright, yaw ± `yaw_jitter_deg`), named `arm_c`, `arm_d`; only with the
+    /// `Facing` layout. Each robot's views then show every other robot's arm when `other_robot_in_view`.
+    pub extra_robots: usize,
     /// RealSense-like flying pixels on 1-2 pixel bands along depth discontinuities.
     pub flying_pixels: bool,
     /// Dropout in blobs of a few to tens of pixels (besides the single-pixel dropout).
@@ -1241,6 +1245,7 @@ impl Default for ForeignConfig {
             other_robot_in_view: false,
             pedestal: false,
             aim: Aim::Shared,
+            extra_robots: 0,
             flying_pixels: false,
             holes: false,
             pose_noise_mm: 0.0,
@@ -1255,14 +1260,18 @@ pub struct ForeignCell {
     pub dir: PathBuf,
     /// The true `T_base1_base2`.
     pub truth: Isometry3<f64>,
-    /// The true hand-eyes `T_ee_cam` of both robots.
-    pub t_ee_cam: [Isometry3<f64>; 2],
-    /// The true flange poses `T_base_ee` of both robots, per frame.
-    pub t_base_ee: [Vec<Isometry3<f64>>; 2],
-    /// Per robot: the fraction of its valid pixels (sampled) that some view of the other robot also saw.
-    pub shared_fraction: [f64; 2],
+    /// Every robot's true `T_base1_base` (the reference's is the identity), in robot order.
+    pub truths: Vec<Isometry3<f64>>,
+    /// The robots' names, in order.
+    pub names: Vec<String>,
+    /// The true hand-eyes `T_ee_cam` of every robot.
+    pub t_ee_cam: Vec<Isometry3<f64>>,
+    /// The true flange poses `T_base_ee` of every robot, per frame.
+    pub t_base_ee: Vec<Vec<Isometry3<f64>>>,
+    /// Per robot: the fraction of its valid pixels (sampled) that some view of another robot also saw.
+    pub shared_fraction: Vec<f64>,
     /// Per robot: the fraction of pixels with data.
-    pub valid_fraction: [f64; 2],
+    pub valid_fraction: Vec<f64>,
     /// Table top height and table centre in base1 (metres).
     pub table_top: f64,
     pub table_centre: Vector3<f64>,
@@ -1488,7 +1497,35 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
             seed: cfg.seed,
         },
     );
-    let bases = [Vector3::zeros(), base2];
+    // More robots beside the long sides, from their own generator (the two-robot cells stay as they were).
+    assert!(
+        cfg.extra_robots <= 2 && (cfg.extra_robots == 0 || cfg.layout == Layout::Facing),
+        "extra robots: at most 2, with the facing layout"
+    );
+    let mut truths = vec![Isometry3::identity(), truth];
+    let mut yaws = vec![0.0, yaw];
+    let mut names: Vec<String> = cfg.names.to_vec();
+    let mut xrng = Rand::keyed(&[cfg.seed, 0x3b0b]);
+    for e in 0..cfg.extra_robots {
+        let side = if e == 0 { -1.0 } else { 1.0 };
+        let pos = Vector3::new(
+            centre.x + xrng.range(-0.1, 0.1),
+            centre.y + side * (width / 2.0 + xrng.range(0.12, 0.25)),
+            xrng.range(-0.05, 0.05),
+        );
+        let y = -side * std::f64::consts::FRAC_PI_2
+            + xrng
+                .range(-cfg.yaw_jitter_deg, cfg.yaw_jitter_deg)
+                .to_radians();
+        truths.push(Isometry3::from_parts(
+            Translation3::from(pos),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), y),
+        ));
+        yaws.push(y);
+        names.push(format!("arm_{}", (b'c' + e as u8) as char));
+    }
+    let n_robots = truths.len();
+    let bases: Vec<Vector3<f64>> = truths.iter().map(|t| t.translation.vector).collect();
     if cfg.pedestal {
         // A box under each base, its table-side face 0.08 m in front of the base.
         for (k, b) in bases.iter().enumerate() {
@@ -1498,7 +1535,7 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
             }
             let to_table = (scene.table_centre - b).xy().normalize();
             let c = b.xy() - to_table * 0.1;
-            let facing = if k == 0 { 0.0 } else { yaw };
+            let facing = yaws[k];
             scene.big.push(Prim::resting_box(
                 c.x,
                 c.y,
@@ -1508,24 +1545,26 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
             ));
         }
     }
-    // Per robot: the static scene, plus the other robot's arm in candle pose when it is in view.
-    let scenes: Vec<Scene> = (0..2)
+    // Per robot: the static scene, plus the other robots' arms in candle pose when they are in view.
+    let scenes: Vec<Scene> = (0..n_robots)
         .map(|k| {
             let mut s = scene.clone();
             if cfg.other_robot_in_view {
-                let mut arng = Rand::keyed(&[cfg.seed, 0xa4a, 1 - k as u64]);
-                s.big.extend(candle_arm(bases[1 - k], &mut arng));
+                for j in (0..n_robots).filter(|&j| j != k) {
+                    let mut arng = Rand::keyed(&[cfg.seed, 0xa4a, j as u64]);
+                    s.big.extend(candle_arm(bases[j], &mut arng));
+                }
             }
             s
         })
         .collect();
     // Cameras and hand-eyes.
-    let to_base = [Isometry3::identity(), truth.inverse()]; // T_base_k_base1
+    let to_base: Vec<Isometry3<f64>> = truths.iter().map(|t| t.inverse()).collect(); // T_base_k_base1
     let mut intr = Vec::new();
     let mut hand_eye = Vec::new();
     let mut cams = Vec::new();
     let mut arcs = Vec::new();
-    for (k, base) in bases.into_iter().enumerate() {
+    for (k, &base) in bases.iter().enumerate() {
         let w = cfg.width as f64;
         let fx = w * 0.6 * (1.0 + rng.range(-0.01, 0.01));
         intr.push(Pinhole {
@@ -1607,7 +1646,7 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
         };
         let overlap_at = |scale: f64| -> f64 {
             let cs = cams_at(scale);
-            let views: Vec<Vec<View>> = (0..2)
+            let views: Vec<Vec<View>> = (0..n_robots)
                 .map(|k| {
                     cs[k]
                         .iter()
@@ -1626,7 +1665,7 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
                 })
                 .collect();
             let (shared, _) = shared_and_valid(&views, &coarse, 1);
-            (shared[0] + shared[1]) / 2.0
+            shared.iter().sum::<f64>() / shared.len() as f64
         };
         let (mut lo, mut hi) = (0.2, 1.2);
         for _ in 0..7 {
@@ -1641,7 +1680,7 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
     }
     // Render.
     let t_render = std::time::Instant::now();
-    let views: Vec<Vec<View>> = (0..2)
+    let views: Vec<Vec<View>> = (0..n_robots)
         .map(|k| {
             cams[k]
                 .iter()
@@ -1679,9 +1718,9 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
     .unwrap();
     writeln!(toml, "format = \"depthcal-cell/1\"").unwrap();
     writeln!(toml, "reference = \"{}\"", cfg.names[0]).unwrap();
-    let mut t_base_ee_all: [Vec<Isometry3<f64>>; 2] = [Vec::new(), Vec::new()];
-    for k in 0..2 {
-        let name = &cfg.names[k];
+    let mut t_base_ee_all: Vec<Vec<Isometry3<f64>>> = vec![Vec::new(); n_robots];
+    for k in 0..n_robots {
+        let name = &names[k];
         std::fs::create_dir_all(dir.join(name).join("depth")).unwrap();
         if cfg.previews {
             std::fs::create_dir_all(dir.join("preview")).unwrap();
@@ -1802,7 +1841,7 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
         .unwrap();
     }
     std::fs::write(dir.join("cell.toml"), toml).unwrap();
-    let gt = serde_json::json!({
+    let mut gt = serde_json::json!({
         "T_base1_base2": rows4(&truth),
         "generator": "depthcal-tests-foreign/1",
         "seed": cfg.seed,
@@ -1812,8 +1851,8 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
         "tilt_deg": cfg.tilt_deg,
         "shared_fraction": shared_fraction,
         "valid_fraction": valid_fraction,
-        "true_hand_eye": {cfg.names[0].clone(): rows4(&hand_eye[0]), cfg.names[1].clone(): rows4(&hand_eye[1])},
-        "true_fy": [intr[0].fy, intr[1].fy],
+        "true_hand_eye": names.iter().zip(&hand_eye).map(|(n, h)| (n.clone(), serde_json::json!(rows4(h)))).collect::<serde_json::Map<_, _>>(),
+        "true_fy": intr.iter().map(|k| k.fy).collect::<Vec<_>>(),
         "sabotage": format!("{:?}", cfg.sabotage),
         "layout": cfg.layout.name(),
         "ground": cfg.effective_ground().name(),
@@ -1832,6 +1871,14 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
         "table_top_m": scene.table_top,
         "table_centre_m": [scene.table_centre.x, scene.table_centre.y, scene.table_centre.z],
     });
+    if n_robots > 2 {
+        // Every robot's base, in the simulator's vocabulary (`calibrate` reads it).
+        gt["robots"] = names
+            .iter()
+            .zip(&truths)
+            .map(|(n, t)| serde_json::json!({"name": n, "T_base1_base": rows4(t)}))
+            .collect();
+    }
     std::fs::write(
         dir.join("ground_truth.json"),
         serde_json::to_string_pretty(&gt).unwrap(),
@@ -1840,7 +1887,9 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
     ForeignCell {
         dir: dir.to_path_buf(),
         truth,
-        t_ee_cam: [hand_eye[0], hand_eye[1]],
+        truths,
+        names,
+        t_ee_cam: hand_eye,
         t_base_ee: t_base_ee_all,
         shared_fraction,
         valid_fraction,
@@ -1852,13 +1901,13 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
     }
 }
 
-/// Per robot: the fraction of its valid pixels (every `step`-th row and column) that some view of the
-/// other robot also saw, and the fraction of all its pixels with data.
-fn shared_and_valid(views: &[Vec<View>], intr: &[Pinhole], step: usize) -> ([f64; 2], [f64; 2]) {
-    let mut shared_fraction = [0.0; 2];
-    let mut valid_fraction = [0.0; 2];
-    for k in 0..2 {
-        let other = 1 - k;
+/// Per robot: the fraction of its valid pixels (every `step`-th row and column) that some view of another
+/// robot also saw, and the fraction of all its pixels with data.
+fn shared_and_valid(views: &[Vec<View>], intr: &[Pinhole], step: usize) -> (Vec<f64>, Vec<f64>) {
+    let n = views.len();
+    let mut shared_fraction = vec![0.0; n];
+    let mut valid_fraction = vec![0.0; n];
+    for k in 0..n {
         let (mut seen, mut shared, mut valid, mut total) = (0usize, 0usize, 0usize, 0usize);
         let kk = &intr[k];
         for view in &views[k] {
@@ -1877,7 +1926,10 @@ fn shared_and_valid(views: &[Vec<View>], intr: &[Pinhole], step: usize) -> ([f64
                         z,
                     );
                     let p_w = view.t_base1_cam * Point3::from(p_cam);
-                    if views[other].iter().any(|ov| sees(&intr[other], ov, &p_w)) {
+                    let by_another = (0..n)
+                        .filter(|&j| j != k)
+                        .any(|j| views[j].iter().any(|ov| sees(&intr[j], ov, &p_w)));
+                    if by_another {
                         shared += 1;
                     }
                 }
