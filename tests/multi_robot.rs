@@ -56,7 +56,15 @@ fn three_robots_round_a_table_are_each_right_and_trusted() {
         serde_json::from_str(&std::fs::read_to_string(dir.join("ground_truth.json")).unwrap())
             .unwrap();
     assert_eq!(truth["robots"].as_array().unwrap().len(), 3);
-    let (code, out, err) = depthcal(&["calibrate", dir.to_str().unwrap(), "--json"]);
+    let outdir = scratch("multi-three-out");
+    let _ = std::fs::remove_dir_all(&outdir);
+    let (code, out, err) = depthcal(&[
+        "calibrate",
+        dir.to_str().unwrap(),
+        "--json",
+        "--output",
+        outdir.to_str().unwrap(),
+    ]);
     let v = json(&out);
     assert_eq!(code, 0, "{err}\n{}", v["reasons"]);
     assert_eq!(v["trusted"], true);
@@ -87,6 +95,55 @@ fn three_robots_round_a_table_are_each_right_and_trusted() {
         v["transform"]["matrix"],
         robot(&v, "right")["transform"]["matrix"]
     );
+    // --output: one static transform (joint, TF entry) per robot, each robot's matrix and controller
+    // frames, every robot's cloud, the JSON.
+    let read =
+        |f: &str| std::fs::read_to_string(outdir.join(f)).unwrap_or_else(|e| panic!("{f}: {e}"));
+    let launch = read("static_tf.launch.py");
+    assert_eq!(
+        launch.matches("static_transform_publisher").count(),
+        2,
+        "{launch}"
+    );
+    assert!(
+        launch.contains("\"--child-frame-id\", \"robot3_base\""),
+        "{launch}"
+    );
+    let urdf = read("base_joint.urdf.xacro");
+    assert_eq!(urdf.matches("<joint ").count(), 2, "{urdf}");
+    let tf = read("tf.yaml");
+    assert_eq!(tf.matches("child_frame_id:").count(), 2, "{tf}");
+    for name in ["right", "robot3"] {
+        let m: Vec<f64> = read(&format!("T_left_{name}.txt"))
+            .split_whitespace()
+            .map(|x| x.parse().unwrap())
+            .collect();
+        let want: Vec<f64> = robot(&v, name)["transform"]["matrix"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .flat_map(|row| row.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()))
+            .collect();
+        assert_eq!(m.len(), 16);
+        assert!(
+            m.iter().zip(&want).all(|(a, b)| (a - b).abs() < 1e-9),
+            "{m:?} vs {want:?}"
+        );
+        for f in ["kuka_base", "ur_pose", "abb_wobj"] {
+            assert!(read(&format!("{f}_{name}.txt")).contains(&format!("{name}_base")));
+        }
+        assert!(outdir.join(format!("cloud_{name}.ply")).is_file());
+    }
+    assert!(outdir.join("cloud_reference.ply").is_file());
+    assert_eq!(json(&read("calibration.json"))["robots"], v["robots"]);
+    // Run again into the same directory: it holds only what calibrate writes.
+    let (code, _, err) = depthcal(&[
+        "calibrate",
+        dir.to_str().unwrap(),
+        "--output",
+        outdir.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
     common::assert_documented(&v);
     for r in v["robots"].as_array().unwrap() {
         common::assert_documented_section(r, "depthcal.calibration/1", " robot entries");
@@ -162,8 +219,8 @@ fn bad_cells_and_flags_of_many_robots_are_errors() {
         (vec!["--refine-hand-eye"], "for cells of two robots"),
         (vec!["--method", "marker"], "from depth (--method depth)"),
         (
-            vec!["--output", "/tmp/depthcal-multi-out"],
-            "--output and --report",
+            vec!["--report", "/tmp/depthcal-multi-report"],
+            "--report is not built",
         ),
     ] {
         let mut a = vec!["calibrate", cell];

@@ -8,7 +8,8 @@ use depthcal::calibration::robot_to_robot::{robot_pair, CalibrateConfig, Calibra
 use depthcal::cell::Cell;
 use depthcal::geometry::pose::{isometry_to_xyzquat, KukaPose};
 use depthcal::geometry::robot_formats::{
-    ros1_static_tf_command, ros2_static_tf_command, transform_files, Frames,
+    robot_file_tokens, robot_transform_file_names, ros1_static_tf_command, ros2_static_tf_command,
+    transform_files, Frames,
 };
 use depthcal::methods::run::HandEyeRefinement;
 use depthcal::methods::{calibrate_refining_hand_eyes, calibrate_with_method};
@@ -45,7 +46,8 @@ pub struct Args {
     json: bool,
     /// Write the result into DIR (created if missing; only for a trusted result): both fused clouds in
     /// the reference base frame, T_base1_base2.txt, calibration.json (as --json), a ROS 2 launch file, a
-    /// URDF joint, a TF YAML file and the KUKA, UR and ABB frames.
+    /// URDF joint, a TF YAML file and the KUKA, UR and ABB frames. A cell of three or more robots: every
+    /// robot's cloud, one static transform (joint, TF entry) per robot, and per robot its matrix and frames.
     #[arg(long, value_name = "DIR")]
     output: Option<PathBuf>,
     /// Write a visual report into DIR (created if missing; also for an untrusted result): report.html (opens
@@ -99,6 +101,95 @@ fn output_names() -> Vec<&'static str> {
     v
 }
 
+/// Every file name `--output DIR` writes for a cell of three or more robots: the reference's cloud, each
+/// other robot's cloud (`cloud_<robot>.ply`), the JSON and the transform files.
+fn robots_output_names(cell: &Cell) -> Vec<String> {
+    let reference = cell.reference().name.clone();
+    let others: Vec<&str> = cell
+        .robots
+        .iter()
+        .filter(|r| r.name != reference)
+        .map(|r| r.name.as_str())
+        .collect();
+    let mut v = vec![REFERENCE_CLOUD_FILE.to_string(), JSON_FILE.to_string()];
+    v.extend(
+        robot_file_tokens(&reference, &others)
+            .iter()
+            .map(|t| format!("cloud_{t}.ply")),
+    );
+    v.extend(robot_transform_file_names(&reference, &others));
+    v
+}
+
+/// Writes `--output DIR` of a cell of three or more robots (every robot trusted): each robot's fused cloud
+/// in the reference base frame (one colour per robot), the JSON and the transform files, each atomically.
+fn write_robot_outputs(
+    dir: &Path,
+    c: &depthcal::calibration::multi_robot::CellCalibration,
+    fused: &depthcal::calibration::robot_to_robot::FusedRobots,
+    frames: &Frames,
+    frame_ids: &[String],
+    json: &CalibrationReport,
+) -> Result<()> {
+    use depthcal::geometry::robot_formats::{robot_transform_files, RobotOutput};
+    if !dir.exists() {
+        std::fs::create_dir(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    // Orange: the reference robot; then blue, green, purple, red, teal, olive, grey.
+    const COLOURS: [[u8; 3]; 8] = [
+        [230, 120, 30],
+        [40, 110, 230],
+        [50, 170, 70],
+        [150, 70, 190],
+        [210, 50, 60],
+        [30, 160, 160],
+        [140, 140, 40],
+        [120, 120, 120],
+    ];
+    let names: Vec<&str> = c.robots.iter().map(|r| r.name.as_str()).collect();
+    let tokens = robot_file_tokens(&c.reference, &names);
+    let outs: Vec<RobotOutput> = c
+        .robots
+        .iter()
+        .zip(frame_ids)
+        .filter_map(|(r, id)| {
+            Some(RobotOutput {
+                name: r.name.clone(),
+                transform: r.transform?,
+                frames: Frames {
+                    parent: frames.parent.clone(),
+                    child: id.clone(),
+                },
+            })
+        })
+        .collect();
+    for (k, cloud) in fused.clouds.iter().enumerate() {
+        if cloud.cloud.is_empty() {
+            continue;
+        }
+        let (name, t) = if k == 0 {
+            (
+                REFERENCE_CLOUD_FILE.to_string(),
+                nalgebra::Isometry3::identity(),
+            )
+        } else {
+            let Some(t) = c.robots[k - 1].transform else {
+                continue;
+            };
+            (format!("cloud_{}.ply", tokens[k - 1]), t)
+        };
+        let mut out = cloud.cloud.transformed(&t);
+        out.colors = Some(vec![COLOURS[k % COLOURS.len()]; out.len()]);
+        depthcal::io::write_cloud(dir.join(name), &out)?;
+    }
+    let text = serde_json::to_string_pretty(json)? + "\n";
+    depthcal::io::write_atomically(&dir.join(JSON_FILE), |w| w.write_all(text.as_bytes()))?;
+    for (name, text) in robot_transform_files(&c.reference, &outs) {
+        depthcal::io::write_atomically(&dir.join(name), |w| w.write_all(text.as_bytes()))?;
+    }
+    Ok(())
+}
+
 /// Checks `--output DIR` and `--report DIR` before any work: not a file, its parent exists, it is not and
 /// holds no input, and when it exists it holds only files calibrate writes there.
 fn check_output_dir(a: &Args, cell: &Cell) -> Result<()> {
@@ -110,7 +201,12 @@ fn check_output_dir(a: &Args, cell: &Cell) -> Result<()> {
         inputs.add(&format!("--board-pose of {r}"), f);
     }
     // One directory may take both.
-    let mut names = output_names();
+    let robot_names = robots_output_names(cell);
+    let mut names = if cell.robots.len() > 2 {
+        robot_names.iter().map(String::as_str).collect()
+    } else {
+        output_names()
+    };
     names.extend(depthcal::viz::REPORT_FILES);
     for (flag, dir) in [("--output", &a.output), ("--report", &a.report)] {
         if let Some(dir) = dir {
@@ -639,10 +735,35 @@ fn run_robots(a: &Args, job: &Job, start: Instant) -> Result<()> {
             "the cell names {n} robots: --no-refine and --refine-hand-eye are for cells of two robots"
         );
     }
-    if a.output.is_some() || a.report.is_some() {
+    if a.report.is_some() {
         anyhow::bail!(
-            "the cell names {n} robots: --output and --report are not built for more than two robots yet; --json prints every robot's pose"
+            "the cell names {n} robots: --report is not built for more than two robots yet; --output writes every robot's cloud and transforms, --json every robot's pose"
         );
+    }
+    // Each other robot's base frame id: the first other robot's is the one of the two-robot outputs
+    // (--child-frame-id), the rest their `frame` in cell.toml, else ROBOT_base; checked before any work
+    // when they go into files.
+    let reference = job.cell.reference().name.clone();
+    let frame_ids: Vec<String> = job
+        .cell
+        .robots
+        .iter()
+        .filter(|r| r.name != reference)
+        .enumerate()
+        .map(|(k, r)| {
+            if k == 0 {
+                job.frames.child.clone()
+            } else {
+                job.cell.frame_id(&r.name)
+            }
+        })
+        .collect();
+    if a.output.is_some() {
+        for id in &frame_ids {
+            Frames::new(&job.frames.parent, id).with_context(|| {
+                "the frame ids of the ROS outputs (--frame-id, --child-frame-id, or `frame` in cell.toml)"
+            })?;
+        }
     }
     let init = depthcal::methods::build(Method::Depth, &job.cell, &job.inputs, &job.cfg)?.0;
     let pb = spinner("opening the cell");
@@ -654,16 +775,11 @@ fn run_robots(a: &Args, job: &Job, start: Instant) -> Result<()> {
         &mut progress,
     );
     pb.finish_and_clear();
-    let (c, _fused) = out.with_context(|| format!("calibrating {}", a.cell.display()))?;
+    let (c, fused) = out.with_context(|| format!("calibrating {}", a.cell.display()))?;
     for w in &c.warnings {
         eprintln!("warning: {w}");
     }
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
-    let frame_ids: Vec<String> = c
-        .robots
-        .iter()
-        .map(|r| job.cell.frame_id(&r.name))
-        .collect();
     let report = CalibrationReport::with_robots(
         &c,
         &a.cell.display().to_string(),
@@ -671,6 +787,17 @@ fn run_robots(a: &Args, job: &Job, start: Instant) -> Result<()> {
         &frame_ids,
         total_ms,
     );
+    if let Some(dir) = &a.output {
+        if c.trust.trusted {
+            write_robot_outputs(dir, &c, &fused, &job.frames, &frame_ids, &report)?;
+            eprintln!("wrote {}", dir.display());
+        } else {
+            eprintln!(
+                "warning: {} not written: the result is not trusted for every robot",
+                dir.display()
+            );
+        }
+    }
     if a.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
