@@ -5,11 +5,14 @@ use crate::errors::{input_err, lib_err, untrusted_err};
 use crate::pool;
 use crate::register::to_json;
 use depthcal::calibration::initializer::UserGuess;
+use depthcal::calibration::multi_robot::calibrate_robots;
 use depthcal::calibration::robot_to_robot::{
     calibrate_request, robot_pair, CalibrateConfig, CalibrateRequest, Calibration,
 };
 use depthcal::cell::Cell;
-use depthcal::geometry::robot_formats::{ros2_static_tf_command, transform_files, Frames};
+use depthcal::geometry::robot_formats::{
+    robot_transform_files, ros2_static_tf_command, transform_files, Frames, RobotOutput,
+};
 use depthcal::methods::{calibrate_with_method, Method, MethodInputs};
 use depthcal::report::CalibrationReport;
 use numpy::{PyArray1, PyArray2};
@@ -26,6 +29,16 @@ pub struct PyCalibration {
     c: Calibration,
     frames: Frames,
     report: serde_json::Value,
+    /// A cell of three or more robots: every robot but the reference.
+    robots: Option<Vec<OtherRobot>>,
+}
+
+/// A robot of a cell of three or more robots, as the joint solution gives it.
+struct OtherRobot {
+    name: String,
+    /// `T_reference_robot`; `None` when it is not calibrated.
+    transform: Option<nalgebra::Isometry3<f64>>,
+    frames: Frames,
 }
 
 #[pymethods]
@@ -134,6 +147,26 @@ impl PyCalibration {
     fn frame_ids(&self) -> (String, String) {
         (self.frames.parent.clone(), self.frames.child.clone())
     }
+    /// Every robot but the reference: ``{name: 4x4 float64 T_<reference>_<robot>}`` (metres), ``None`` for a
+    /// robot that is not calibrated. Two robots: the other robot's ``transform``. Three or more: the joint
+    /// solution of every pair (docs/calibrate.md, "Cells of three or more robots"); ``to_dict()["robots"]`` and
+    /// ``["pairs"]`` hold each robot's 1-sigma, verdict and reasons and each pair's own result.
+    #[getter]
+    fn poses<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        match &self.robots {
+            None => d.set_item(&self.c.other, convert::matrix4(py, &self.c.transform))?,
+            Some(rs) => {
+                for r in rs {
+                    d.set_item(
+                        &r.name,
+                        r.transform.as_ref().map(|t| convert::matrix4(py, t)),
+                    )?;
+                }
+            }
+        }
+        Ok(d)
+    }
     /// Wall time of each stage, milliseconds (a dict).
     #[getter]
     fn timings_ms<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
@@ -143,8 +176,27 @@ impl PyCalibration {
     /// a dict of file name to text.
     fn transform_files<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let d = PyDict::new(py);
-        for (name, text) in transform_files(&self.c.transform, &self.frames) {
-            d.set_item(name, text)?;
+        match &self.robots {
+            None => {
+                for (name, text) in transform_files(&self.c.transform, &self.frames) {
+                    d.set_item(name, text)?;
+                }
+            }
+            Some(rs) => {
+                let outs: Vec<RobotOutput> = rs
+                    .iter()
+                    .filter_map(|r| {
+                        Some(RobotOutput {
+                            name: r.name.clone(),
+                            transform: r.transform?,
+                            frames: r.frames.clone(),
+                        })
+                    })
+                    .collect();
+                for (name, text) in robot_transform_files(&self.c.reference, &outs) {
+                    d.set_item(name, text)?;
+                }
+            }
         }
         Ok(d)
     }
@@ -280,6 +332,44 @@ pub fn calibrate(
         init: init_file,
         board_pose,
     };
+    if cell.robots.len() > 2 {
+        // Every base at once, as `depthcal calibrate` solves a cell of three or more robots.
+        if method != Method::Depth || !refine {
+            return Err(input_err(format!(
+                "the cell names {} robots: cells of more than two robots are calibrated from depth (method=\"depth\", refine=True); init and the image methods give one pair",
+                cell.robots.len()
+            )));
+        }
+        let frame_ids = cell.other_frame_ids(&frames.child);
+        let outcome = pool::run(py, threads, move || {
+            let init = depthcal::methods::build(Method::Depth, &cell, &inputs, &cfg)?.0;
+            calibrate_robots(&cell, init.as_ref(), &cfg, &mut |_| {})
+        })?;
+        let (cc, _fused) = outcome.map_err(lib_err)?;
+        let total_ms = start.elapsed().as_secs_f64() * 1e3;
+        let report = to_json(&CalibrationReport::with_robots(
+            &cc, &cell_name, &frames, &frame_ids, total_ms,
+        ))?;
+        let robots = cc
+            .robots
+            .iter()
+            .zip(&frame_ids)
+            .map(|(r, id)| OtherRobot {
+                name: r.name.clone(),
+                transform: r.transform,
+                frames: Frames {
+                    parent: frames.parent.clone(),
+                    child: id.clone(),
+                },
+            })
+            .collect();
+        return Ok(PyCalibration {
+            c: cc.headline(),
+            frames,
+            report,
+            robots: Some(robots),
+        });
+    }
     let outcome = pool::run(py, threads, move || match init_array {
         Some(transform) => {
             let guess = UserGuess {
@@ -296,5 +386,10 @@ pub fn calibrate(
     let (c, _fused) = outcome.map_err(lib_err)?;
     let total_ms = start.elapsed().as_secs_f64() * 1e3;
     let report = to_json(&CalibrationReport::new(&c, &cell_name, &frames, total_ms))?;
-    Ok(PyCalibration { c, frames, report })
+    Ok(PyCalibration {
+        c,
+        frames,
+        report,
+        robots: None,
+    })
 }

@@ -16,10 +16,13 @@ use std::time::Instant;
 ///     seed: seed of everything random (default 1).
 ///     frames: frames per robot (default 20).
 ///     noise: depth noise ``none``, ``low``, ``default``, ``high``, or a factor of the default (a number).
-///     overlap: how much of the scene both robots see, 0-1 (default 0.7).
+///     overlap: how much of the scene both robots see, 0-1 (default 0.7; with more robots, what two
+///         robots share on average over the pairs).
 ///     resolution: ``640x480`` (default) or ``1280x720``.
 ///     objects: number of objects on the table.
 ///     tilted_bases: tilt the robot bases by up to 2 degrees.
+///     robots: the number of robots, 2-8 (default 2): evenly round the table, named left, right,
+///         robot3, ... (as ``depthcal simulate --robots N``).
 ///     color: render colour images (default True).
 ///     textured: give objects and table a distinctive texture.
 ///     config: a dict of ``SimConfig`` fields (e.g. ``{"scene": {"board": {"cols": 9, "rows": 6}}}``)
@@ -34,7 +37,7 @@ use std::time::Instant;
 ///     ``kuka_xyzabc``), ``base_distance_m``, ``shared_fraction``, ``view_spread``, ``files``, ``bytes``,
 ///     ``seconds``.
 #[pyfunction]
-#[pyo3(signature = (out_dir, *, seed=None, frames=None, noise=None, overlap=None, resolution=None, objects=None, tilted_bases=false, color=true, textured=false, config=None, force=false, threads=None))]
+#[pyo3(signature = (out_dir, *, seed=None, frames=None, noise=None, overlap=None, resolution=None, objects=None, tilted_bases=false, color=true, textured=false, config=None, force=false, threads=None, robots=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn simulate<'py>(
     py: Python<'py>,
@@ -51,9 +54,13 @@ pub fn simulate<'py>(
     config: Option<&Bound<'py, PyAny>>,
     force: bool,
     threads: Option<usize>,
+    robots: Option<usize>,
 ) -> PyResult<Bound<'py, PyAny>> {
     let dir = convert::path(out_dir, "out_dir")?;
     let mut cfg: SimConfig = convert::config(config, "SimConfig")?;
+    if let Some(n) = robots {
+        cfg.set_robots(n).map_err(lib_err)?;
+    }
     if let Some(s) = seed {
         cfg.seed = s;
     }

@@ -124,6 +124,33 @@ def test_simulate_equals_the_cli_byte_for_byte(cli, tmp_path):
     assert c.trusted and c.error_vs_truth[0] < 0.1
 
 
+def test_three_robots_equal_the_cli_and_give_every_pose(cli, tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    want = cli("simulate", str(a), "--robots", "3", "--seed", "4", "--frames", "14", "--no-color")
+    got = depthcal.simulate(b, robots=3, seed=4, frames=14, color=False)
+    assert_same(got, want, ignore=("out_dir",))
+    assert got["robots"] == ["left", "right", "robot3"]
+    want = cli("calibrate", str(a))
+    c = depthcal.calibrate(a)
+    assert_same(c.to_dict(), want)
+    poses = c.poses
+    assert sorted(poses) == ["right", "robot3"]
+    for r in want["robots"]:
+        assert r["trusted"], r["reasons"]
+        assert np.array_equal(poses[r["name"]], np.array(r["transform"]["matrix"]))
+    files = c.transform_files()
+    assert "T_left_robot3.txt" in files and files["static_tf.launch.py"].count("static_transform_publisher") == 2
+    with pytest.raises(depthcal.InputError, match="3 robots"):
+        depthcal.calibrate(a, refine=False)
+    with pytest.raises(depthcal.ConfigError, match="robots"):
+        depthcal.simulate(tmp_path / "c", robots=9)
+
+
+def test_two_robots_give_the_other_robots_pose():
+    c = depthcal.calibrate("clouds/demo-cell", refine=False)
+    assert list(c.poses) == ["right"] and np.array_equal(c.poses["right"], c.transform)
+
+
 def test_simulate_bad_input(tmp_path):
     with pytest.raises(depthcal.InputError, match="noise"):
         depthcal.simulate(tmp_path / "x", noise="loud")

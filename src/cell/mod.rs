@@ -967,6 +967,25 @@ impl Cell {
             .unwrap_or_else(|| format!("{name}_base"))
     }
 
+    /// The base frame ids of every robot but the reference, in manifest order: `first_child` for the
+    /// first of them (the child frame of the two-robot outputs), the others' `frame` in cell.toml, else
+    /// `ROBOT_base` ([`Cell::frame_id`]).
+    pub fn other_frame_ids(&self, first_child: &str) -> Vec<String> {
+        let reference = &self.manifest.reference;
+        self.robots
+            .iter()
+            .filter(|r| &r.name != reference)
+            .enumerate()
+            .map(|(k, r)| {
+                if k == 0 {
+                    first_child.to_string()
+                } else {
+                    self.frame_id(&r.name)
+                }
+            })
+            .collect()
+    }
+
     /// The reference robot.
     pub fn reference(&self) -> &CellRobot {
         self.robots

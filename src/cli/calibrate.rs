@@ -743,21 +743,7 @@ fn run_robots(a: &Args, job: &Job, start: Instant) -> Result<()> {
     // Each other robot's base frame id: the first other robot's is the one of the two-robot outputs
     // (--child-frame-id), the rest their `frame` in cell.toml, else ROBOT_base; checked before any work
     // when they go into files.
-    let reference = job.cell.reference().name.clone();
-    let frame_ids: Vec<String> = job
-        .cell
-        .robots
-        .iter()
-        .filter(|r| r.name != reference)
-        .enumerate()
-        .map(|(k, r)| {
-            if k == 0 {
-                job.frames.child.clone()
-            } else {
-                job.cell.frame_id(&r.name)
-            }
-        })
-        .collect();
+    let frame_ids = job.cell.other_frame_ids(&job.frames.child);
     if a.output.is_some() {
         for id in &frame_ids {
             Frames::new(&job.frames.parent, id).with_context(|| {

@@ -113,15 +113,7 @@ fn settings(a: &Args) -> anyhow::Result<depthcal::sim::SimConfig> {
         cfg.frames = k;
     }
     if let Some(n) = a.robots {
-        if !(2..=depthcal::sim::SimConfig::MAX_ROBOTS).contains(&n) {
-            anyhow::bail!(
-                "--robots {n}: a simulated cell holds 2 to {} robots",
-                depthcal::sim::SimConfig::MAX_ROBOTS
-            );
-        }
-        if cfg.robot_names.len() != n {
-            cfg.robot_names = depthcal::sim::SimConfig::default_robot_names(n);
-        }
+        cfg.set_robots(n)?;
     }
     if let Some(n) = a.noise {
         cfg.noise_level = n;

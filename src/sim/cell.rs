@@ -140,6 +140,24 @@ impl SimConfig {
             .collect()
     }
 
+    /// `n` robots (2 to [`SimConfig::MAX_ROBOTS`]): keeps `robot_names` when it already names `n`, else the
+    /// default names ([`SimConfig::default_robot_names`]). The error names `robots`.
+    pub fn set_robots(&mut self, n: usize) -> Result<()> {
+        if !(2..=Self::MAX_ROBOTS).contains(&n) {
+            return Err(Error::Config {
+                field: "robots".into(),
+                msg: format!(
+                    "--robots {n}: a simulated cell holds 2 to {} robots",
+                    Self::MAX_ROBOTS
+                ),
+            });
+        }
+        if self.robot_names.len() != n {
+            self.robot_names = Self::default_robot_names(n);
+        }
+        Ok(())
+    }
+
     /// Checks the ranges; the error names the field.
     pub fn validate(&self) -> Result<()> {
         let bad = |field: &str, msg: String| {
