@@ -2,7 +2,7 @@
 
 use crate::cloud::cloud_from_py;
 use crate::convert;
-use crate::errors::{lib_err, new_err, untrusted_err, Kind};
+use crate::errors::{lib_err, untrusted_err, Kind};
 use crate::pool;
 use depthcal::registration::RegisterConfig;
 use numpy::{PyArray1, PyArray2};
@@ -214,14 +214,6 @@ pub fn register(
     cfg.seed = seed;
     if voxel.is_some() {
         cfg.voxel = voxel;
-    }
-    if let Some(v) = cfg.voxel {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(new_err(
-                Kind::Config,
-                format!("voxel {v}: the voxel size must be a positive number (cloud units)"),
-            ));
-        }
     }
     cfg.validate().map_err(lib_err)?;
     let init = init

@@ -103,7 +103,7 @@ def test_fuse_bad_input():
         depthcal.fuse("clouds/demo-cell", "nobody")
     with pytest.raises(depthcal.InputError, match="crop: expected 6 finite numbers"):
         depthcal.fuse("clouds/demo-cell", crop=[0, 0, 0])
-    with pytest.raises(depthcal.InputError, match="need finite depths with min < max"):
+    with pytest.raises(depthcal.ConfigError, match="max_depth_m: must exceed min_depth_m"):
         depthcal.fuse("clouds/demo-cell", min_depth=2.0, max_depth=1.0)
 
 

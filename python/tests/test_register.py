@@ -223,7 +223,7 @@ def test_bad_configuration_raises_config_errors():
         depthcal.register(GOOD, GOOD, config={"voxle": 0.1})
     with pytest.raises(depthcal.ConfigError, match="icp.max_iterations"):
         depthcal.register(GOOD, GOOD, config={"icp": {"max_iterations": 0}})
-    with pytest.raises(ValueError, match="voxel -1: the voxel size must be a positive number"):
+    with pytest.raises(ValueError, match="voxel: -1: the voxel size must be a positive number"):
         depthcal.register(GOOD, GOOD, voxel=-1)
     with pytest.raises(depthcal.InputError, match="voxel 10 exceeds the extent of the clouds"):
         depthcal.register(GOOD, GOOD, voxel=10.0)

@@ -82,7 +82,7 @@ pub struct CalibrateConfig {
     /// better than the truth and were the answer on 4 of 10 wrong low-overlap cells (docs/accuracy.md).
     pub min_base_distance_m: f64,
     /// Cells of three or more robots: the pose graph over the pairwise results
-    /// ([`crate::calibration::multi_robot`]).
+    /// (`calibration::multi_robot`, which builds on this module).
     pub pose_graph: crate::calibration::pose_graph::PoseGraphConfig,
 }
 

@@ -4,7 +4,7 @@ use super::guard::{check_output_file, Inputs};
 use anyhow::Context;
 use clap::Args as ClapArgs;
 use depthcal::cell::Cell;
-use depthcal::fusion::{fuse_robot, CropBox, FuseConfig};
+use depthcal::fusion::{check_fused_size, fuse_robot, CropBox, FuseOptions};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -69,39 +69,23 @@ pub fn parse_crop(s: &str) -> Result<CropBox, String> {
             .filter(|x| x.is_finite())
             .ok_or_else(|| format!("{s:?}: {p:?} is not a finite number"))?;
     }
-    let (lo, hi) = (
-        [v[0].min(v[3]), v[1].min(v[4]), v[2].min(v[5])],
-        [v[0].max(v[3]), v[1].max(v[4]), v[2].max(v[5])],
-    );
-    if (0..3).any(|k| lo[k] == hi[k]) {
-        return Err(format!(
-            "{s:?}: the crop box is empty (two corners share a coordinate)"
-        ));
-    }
-    Ok(CropBox { min: lo, max: hi })
+    CropBox::from_corners(&v).map_err(|e| format!("{s:?}: {e}"))
 }
-
-/// The fewest points a fused cloud must have to be written (fewer cannot be registered), and the count
-/// below which a warning says the cloud is very sparse.
-const MIN_FUSED_POINTS: usize = 20;
-const FEW_FUSED_POINTS: usize = 1000;
 
 /// Runs `depthcal fuse`.
 pub fn run(a: Args) -> anyhow::Result<()> {
     // Everything checkable before any work.
     check_output_file("--output", &a.output, &["ply", "xyz", "txt"])?;
-    if let Some(v) = a.voxel {
-        if !(v.is_finite() && v > 0.0) {
-            anyhow::bail!("--voxel {v}: the voxel edge must be a positive number of metres");
-        }
+    let cfg = FuseOptions {
+        voxel_m: a.voxel,
+        min_depth_m: a.min_depth,
+        max_depth_m: a.max_depth,
+        crop: a.crop,
+        outlier_removal: !a.no_outlier_removal,
+        normals: !a.no_normals,
     }
-    if !(a.min_depth.is_finite() && a.max_depth.is_finite() && a.min_depth < a.max_depth) {
-        anyhow::bail!(
-            "--min-depth {} / --max-depth {}: need finite depths with min < max",
-            a.min_depth,
-            a.max_depth
-        );
-    }
+    .config()
+    .context("--voxel, --min-depth, --max-depth, --crop")?;
     let cell = Cell::open(&a.cell_dir)?;
     let mut inputs = Inputs::default();
     inputs.add_cell(&cell);
@@ -111,19 +95,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .clone()
         .unwrap_or_else(|| cell.manifest.reference.clone());
     let robot = cell.robot(&name)?;
-    let mut cfg = FuseConfig {
-        voxel_size_m: a.voxel,
-        ..Default::default()
-    };
-    cfg.deproject.min_depth_m = a.min_depth;
-    cfg.deproject.max_depth_m = a.max_depth;
-    cfg.crop = a.crop;
-    if a.no_outlier_removal {
-        cfg.outlier = None;
-    }
-    if a.no_normals {
-        cfg.normals = None;
-    }
     let bar = ProgressBar::new(robot.frames.len() as u64);
     bar.set_style(
         ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} frames ({elapsed})")
@@ -138,23 +109,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         fused.with_context(|| format!("fusing robot {name:?} of {}", a.cell_dir.display()))?;
     let seconds = start.elapsed().as_secs_f64();
     let s = &fused.stats;
-    if s.points_out < MIN_FUSED_POINTS {
-        anyhow::bail!(
-            "fusing robot {name:?}: the fused cloud has only {} points (voxel {} m, {} frames, {} samples): \
-             too few to register (at least {MIN_FUSED_POINTS}); {} not written. Choose a smaller --voxel",
-            s.points_out,
-            s.voxel_size_m,
-            s.frames,
-            s.points_in,
-            a.output.display()
-        );
-    }
-    if s.points_out < FEW_FUSED_POINTS {
-        eprintln!(
-            "warning: the fused cloud has only {} points (voxel {} m): too sparse for a reliable \
-             registration; choose a smaller --voxel",
-            s.points_out, s.voxel_size_m
-        );
+    let few = check_fused_size(&name, s)
+        .with_context(|| format!("{} not written", a.output.display()))?;
+    if let Some(w) = few {
+        eprintln!("warning: {w}");
     }
     depthcal::io::write_cloud(&a.output, &fused.cloud)?;
     if a.json {

@@ -132,11 +132,6 @@ fn settings(a: &Args) -> Result<RegisterConfig> {
     if a.voxel.is_some() {
         cfg.voxel = a.voxel;
     }
-    if let Some(v) = cfg.voxel {
-        if !(v.is_finite() && v > 0.0) {
-            anyhow::bail!("--voxel {v}: the voxel size must be a positive number (cloud units)");
-        }
-    }
     cfg.validate().with_context(|| {
         super::output::config_source(a.config.as_deref(), "the registration configuration")
     })?;

@@ -38,6 +38,22 @@ pub struct CropBox {
 }
 
 impl CropBox {
+    /// The box of two corners `[x0, y0, z0, x1, y1, z1]` (metres, in any order); the error says what is
+    /// wrong (not six finite numbers, or two corners sharing a coordinate).
+    pub fn from_corners(v: &[f64]) -> std::result::Result<Self, String> {
+        if v.len() != 6 || v.iter().any(|x| !x.is_finite()) {
+            return Err(format!(
+                "expected 6 finite numbers (x0, y0, z0, x1, y1, z1), metres; got {v:?}"
+            ));
+        }
+        let lo = [v[0].min(v[3]), v[1].min(v[4]), v[2].min(v[5])];
+        let hi = [v[0].max(v[3]), v[1].max(v[4]), v[2].max(v[5])];
+        if (0..3).any(|k| lo[k] == hi[k]) {
+            return Err("the crop box is empty (two corners share a coordinate)".into());
+        }
+        Ok(CropBox { min: lo, max: hi })
+    }
+
     /// True when `p` (metres, base frame) is inside the box (bounds included).
     #[inline]
     pub fn contains(&self, p: &[f64; 3]) -> bool {
@@ -142,6 +158,69 @@ impl FuseConfig {
         }
         self.deproject.validate()
     }
+}
+
+/// The fewest points a fused cloud must have (fewer cannot be registered).
+pub const MIN_FUSED_POINTS: usize = 20;
+/// Below this many points a fused cloud is too sparse for a reliable registration (a warning).
+pub const FEW_FUSED_POINTS: usize = 1000;
+
+/// What `depthcal fuse` and `depthcal.fuse` take, one settings layer for both: [`FuseOptions::config`]
+/// makes the checked [`FuseConfig`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct FuseOptions {
+    /// Voxel edge, metres (`None`: automatic).
+    pub voxel_m: Option<f64>,
+    /// Depths kept, metres.
+    pub min_depth_m: f64,
+    /// See `min_depth_m`.
+    pub max_depth_m: f64,
+    /// Workspace crop box in the base frame.
+    pub crop: Option<CropBox>,
+    /// Remove statistical outliers.
+    pub outlier_removal: bool,
+    /// Estimate normals.
+    pub normals: bool,
+}
+
+impl FuseOptions {
+    /// The fusion settings of these options over the defaults, checked ([`FuseConfig::validate`]: the
+    /// error names the field).
+    pub fn config(&self) -> Result<FuseConfig> {
+        let mut cfg = FuseConfig {
+            voxel_size_m: self.voxel_m,
+            crop: self.crop,
+            ..Default::default()
+        };
+        cfg.deproject.min_depth_m = self.min_depth_m;
+        cfg.deproject.max_depth_m = self.max_depth_m;
+        if !self.outlier_removal {
+            cfg.outlier = None;
+        }
+        if !self.normals {
+            cfg.normals = None;
+        }
+        cfg.validate()?;
+        Ok(cfg)
+    }
+}
+
+/// Whether robot `robot`'s fused cloud can be registered: an error below [`MIN_FUSED_POINTS`] points, a
+/// warning to show below [`FEW_FUSED_POINTS`].
+pub fn check_fused_size(robot: &str, s: &FuseStats) -> Result<Option<String>> {
+    if s.points_out < MIN_FUSED_POINTS {
+        return Err(Error::InvalidInput(format!(
+            "fusing robot {robot:?}: the fused cloud has only {} points (voxel {} m, {} frames, {} samples): \
+             too few to register (at least {MIN_FUSED_POINTS}). Choose a smaller voxel",
+            s.points_out, s.voxel_size_m, s.frames, s.points_in
+        )));
+    }
+    Ok((s.points_out < FEW_FUSED_POINTS).then(|| {
+        format!(
+            "the fused cloud has only {} points (voxel {} m): too sparse for a reliable registration; choose a smaller voxel",
+            s.points_out, s.voxel_size_m
+        )
+    }))
 }
 
 /// Counters of a fusion run.

@@ -186,7 +186,7 @@ impl RegisterConfig {
         if let Some(v) = self.voxel.filter(|v| !(*v > 0.0 && v.is_finite())) {
             return Err(Error::config(
                 "voxel",
-                format!("must be a positive length, got {v}"),
+                format!("{v}: the voxel size must be a positive number (cloud units)"),
             ));
         }
         self.scale.validate()?;
