@@ -136,14 +136,26 @@ fn three_robots_round_a_table_are_each_right_and_trusted() {
     }
     assert!(outdir.join("cloud_reference.ply").is_file());
     assert_eq!(json(&read("calibration.json"))["robots"], v["robots"]);
-    // Run again into the same directory: it holds only what calibrate writes.
-    let (code, _, err) = depthcal(&[
+    // Run again into the same directory (it holds only what calibrate writes), on one thread: every
+    // robot's pose is bit-identical.
+    let (code, out, err) = depthcal(&[
+        "--threads",
+        "1",
         "calibrate",
         dir.to_str().unwrap(),
+        "--json",
         "--output",
         outdir.to_str().unwrap(),
     ]);
     assert_eq!(code, 0, "{err}");
+    let one = json(&out);
+    for name in ["right", "robot3"] {
+        assert_eq!(
+            robot(&one, name)["transform"],
+            robot(&v, name)["transform"],
+            "{name}: one thread against all"
+        );
+    }
     common::assert_documented(&v);
     for r in v["robots"].as_array().unwrap() {
         common::assert_documented_section(r, "depthcal.calibration/1", " robot entries");
