@@ -135,17 +135,8 @@ fn write_robot_outputs(
     if !dir.exists() {
         std::fs::create_dir(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    // Orange: the reference robot; then blue, green, purple, red, teal, olive, grey.
-    const COLOURS: [[u8; 3]; 8] = [
-        [230, 120, 30],
-        [40, 110, 230],
-        [50, 170, 70],
-        [150, 70, 190],
-        [210, 50, 60],
-        [30, 160, 160],
-        [140, 140, 40],
-        [120, 120, 120],
-    ];
+    // The report's colours: orange the reference robot, then blue, purple, green, yellow, cyan.
+    let colours = depthcal::viz::scene::PALETTE;
     let names: Vec<&str> = c.robots.iter().map(|r| r.name.as_str()).collect();
     let tokens = robot_file_tokens(&c.reference, &names);
     let outs: Vec<RobotOutput> = c
@@ -179,7 +170,7 @@ fn write_robot_outputs(
             (format!("cloud_{}.ply", tokens[k - 1]), t)
         };
         let mut out = cloud.cloud.transformed(&t);
-        out.colors = Some(vec![COLOURS[k % COLOURS.len()]; out.len()]);
+        out.colors = Some(vec![colours[k % colours.len()]; out.len()]);
         depthcal::io::write_cloud(dir.join(name), &out)?;
     }
     let text = serde_json::to_string_pretty(json)? + "\n";
@@ -255,9 +246,12 @@ fn write_outputs(
     };
     if !fused.reference.cloud.is_empty() || !fused.other.cloud.is_empty() {
         // Orange: the reference robot; blue: the other robot.
-        let r = colored(&fused.reference.cloud, [230, 120, 30]);
+        let r = colored(&fused.reference.cloud, depthcal::viz::scene::PALETTE[0]);
         depthcal::io::write_cloud(dir.join(REFERENCE_CLOUD_FILE), &r)?;
-        let o = colored(&fused.other.cloud.transformed(&c.transform), [40, 110, 230]);
+        let o = colored(
+            &fused.other.cloud.transformed(&c.transform),
+            depthcal::viz::scene::PALETTE[1],
+        );
         depthcal::io::write_cloud(dir.join(OTHER_CLOUD_FILE), &o)?;
     }
     let text = serde_json::to_string_pretty(json)? + "\n";
@@ -461,12 +455,7 @@ fn print_text(c: &Calibration, report: &CalibrationReport, frames: &Frames, tota
         );
     }
     print_truth(c);
-    let times: Vec<String> = c
-        .timings_ms
-        .iter()
-        .map(|(k, v)| format!("{k} {v:.0}"))
-        .collect();
-    println!("timings (ms)    {}  total {total_ms:.0}", times.join(", "));
+    print_timings(&c.timings_ms, total_ms);
     print_checks(c);
 }
 
@@ -514,6 +503,15 @@ fn print_pose_lines(
         sd[4] * 1e3,
         sd[5] * 1e3
     );
+}
+
+/// Each stage's wall time and the whole run's, milliseconds.
+fn print_timings(timings_ms: &[(String, f64)], total_ms: f64) {
+    let times: Vec<String> = timings_ms
+        .iter()
+        .map(|(k, v)| format!("{k} {v:.0}"))
+        .collect();
+    println!("timings (ms)    {}  total {total_ms:.0}", times.join(", "));
 }
 
 /// The trust verdict with its reasons and suggestions (`scope` after "yes").
@@ -869,11 +867,6 @@ fn print_robots(
             }
         }
     }
-    let times: Vec<String> = c
-        .timings_ms
-        .iter()
-        .map(|(k, v)| format!("{k} {v:.0}"))
-        .collect();
-    println!("timings (ms)    {}  total {total_ms:.0}", times.join(", "));
+    print_timings(&c.timings_ms, total_ms);
     print_verdict(&c.trust, " (every robot)");
 }
