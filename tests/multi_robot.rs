@@ -210,9 +210,19 @@ fn a_robot_whose_frames_show_another_scene_is_not_calibrated() {
     let right = robot(&v, "right");
     assert_eq!(right["trusted"], true, "{right}");
     assert!(right["error_vs_truth"]["rotation_deg"].as_f64().unwrap() < 0.1);
-    // The text names it too.
-    let (code, out, _) = depthcal(&["calibrate", dir.to_str().unwrap()]);
+    // The text names it too, and the report shows it without a pose and says why.
+    let report = scratch("multi-foreign-robot-report");
+    let (code, out, _) = depthcal(&[
+        "calibrate",
+        dir.to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+    ]);
     assert_eq!(code, 3);
+    let html = std::fs::read_to_string(report.join("report.html")).unwrap();
+    assert!(html.contains("data-trusted=\"false\""));
+    assert!(html.contains("NOT calibrated") && html.contains("no pose:"));
+    assert!(html.contains("robot &quot;robot3&quot; is not calibrated"));
     assert!(out.contains("T_left_robot3: NOT calibrated"), "{out}");
     assert!(
         out.contains("T_left_right: right base -> left base"),
@@ -230,10 +240,6 @@ fn bad_cells_and_flags_of_many_robots_are_errors() {
         (vec!["--no-refine"], "for cells of two robots"),
         (vec!["--refine-hand-eye"], "for cells of two robots"),
         (vec!["--method", "marker"], "from depth (--method depth)"),
-        (
-            vec!["--report", "/tmp/depthcal-multi-report"],
-            "--report is not built",
-        ),
     ] {
         let mut a = vec!["calibrate", cell];
         a.extend(args.iter().copied());

@@ -335,6 +335,84 @@ fn calibrate_report_on_the_demo_cell() {
     assert_eq!(listing(&dir).len(), before);
 }
 
+/// Pixels close to a colour of the report's palette (the shaded clouds keep their hue).
+fn near(rgb: &[u8], want: [u8; 3]) -> usize {
+    rgb.chunks_exact(3)
+        .filter(|p| {
+            let (r, g, b) = (p[0] as f64, p[1] as f64, p[2] as f64);
+            let (wr, wg, wb) = (want[0] as f64, want[1] as f64, want[2] as f64);
+            // Same hue under the depth shading: the pixel is the colour scaled by 0.4-1.1.
+            let k = (r * wr + g * wg + b * wb) / (wr * wr + wg * wg + wb * wb);
+            (0.4..1.1).contains(&k)
+                && ((r - k * wr).powi(2) + (g - k * wg).powi(2) + (b - k * wb).powi(2)).sqrt()
+                    < 25.0
+        })
+        .count()
+}
+
+#[test]
+fn calibrate_report_of_three_robots() {
+    let cell = scratch("report-three");
+    let (code, _, err) = depthcal(&[
+        "simulate",
+        s(&cell),
+        "--robots",
+        "3",
+        "--seed",
+        "12",
+        "--frames",
+        "12",
+        "--no-color",
+        "--force",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let dir = scratch("report-three-out");
+    let _ = std::fs::remove_dir_all(&dir);
+    let (code, out, err) = depthcal(&["calibrate", s(&cell), "--json", "--report", s(&dir)]);
+    let json: Value = serde_json::from_str(&out).unwrap();
+    assert!(err.contains("report.html"), "{err}");
+    let (html, data) = check_files(&dir);
+    assert_eq!(data["kind"], "calibrate_robots");
+    // The page holds the JSON's robots and pairs, and its verdict.
+    assert_eq!(data["robots"], json["robots"]);
+    assert_eq!(data["pairs"], json["pairs"]);
+    assert_eq!(data["trusted"], json["trusted"]);
+    assert_eq!(code == 0, json["trusted"] == true, "{err}");
+    // One cloud per robot, each robot's residual against the reference when it has a pose.
+    assert_eq!(data["scene"]["sets"].as_array().unwrap().len(), 3);
+    let posed = json["robots"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|r| !r["transform"].is_null())
+        .count();
+    assert_eq!(data["residuals"].as_array().unwrap().len(), posed);
+    // Every robot and every pair is named on the page, with the graph's nodes and edges.
+    for name in ["left", "right", "robot3"] {
+        assert!(html.contains(&format!("T_left_{name}")) || name == "left");
+        assert!(
+            html.contains(&format!(">{name}</text>")),
+            "graph node {name}"
+        );
+    }
+    let graph = &html[html.find("<section id=\"graph\">").unwrap()..];
+    let graph = &graph[..graph.find("</section>").unwrap()];
+    assert_eq!(graph.matches("<circle").count(), 3);
+    assert_eq!(graph.matches("<line ").count(), 3);
+    // Each posed robot in its own colour on the overview: orange the reference, blue and purple the others.
+    let (_, _, rgb) = read_png(&dir.join("overview.png"));
+    for (k, want) in [[230, 120, 30], [40, 110, 230], [175, 80, 210]]
+        .into_iter()
+        .enumerate()
+    {
+        let px = near(&rgb, want);
+        if k == 0 || !json["robots"][k - 1]["transform"].is_null() {
+            assert!(px > 1500, "robot {k}: {px} pixels of its colour");
+        }
+    }
+    check_in_browser(&dir, &data);
+}
+
 #[test]
 fn register_report_on_the_sample_pair() {
     let dir = scratch("register-report").join("rep");

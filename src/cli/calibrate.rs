@@ -733,11 +733,6 @@ fn run_robots(a: &Args, job: &Job, start: Instant) -> Result<()> {
             "the cell names {n} robots: --no-refine and --refine-hand-eye are for cells of two robots"
         );
     }
-    if a.report.is_some() {
-        anyhow::bail!(
-            "the cell names {n} robots: --report is not built for more than two robots yet; --output writes every robot's cloud and transforms, --json every robot's pose"
-        );
-    }
     // Each other robot's base frame id: the first other robot's is the one of the two-robot outputs
     // (--child-frame-id), the rest their `frame` in cell.toml, else ROBOT_base; checked before any work
     // when they go into files.
@@ -781,6 +776,11 @@ fn run_robots(a: &Args, job: &Job, start: Instant) -> Result<()> {
                 dir.display()
             );
         }
+    }
+    if let Some(dir) = &a.report {
+        super::visual::write(dir, c.trust.trusted, || {
+            depthcal::viz::robots_report(&job.cell, &c, &fused, &report, &job.frames)
+        })?;
     }
     if a.json {
         println!("{}", serde_json::to_string_pretty(&report)?);

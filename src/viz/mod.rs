@@ -6,7 +6,8 @@
 //! The pages are built from the library's results: [`calibration_report`] from a
 //! [`Calibration`](crate::calibration::robot_to_robot::Calibration) and the fused clouds it registered,
 //! [`registration_report`] from a [`Registration`](crate::registration::Registration) and its two clouds,
-//! [`comparison_report`] from the methods of `compare`. Frames: the reference robot's base (calibration) or
+//! [`comparison_report`] from the methods of `compare`, [`robots_report`] from the joint solution of a cell
+//! of three or more robots. Frames: the reference robot's base (calibration) or
 //! the target's frame (registration); residuals in mm for cells (metres), in cloud units for `register`.
 //! Output is deterministic for the same result (the stage timings shown are the result's own).
 //! See `docs/report.md`.
@@ -18,6 +19,7 @@ pub mod page;
 mod registration;
 pub mod render;
 pub mod residual;
+mod robots;
 pub mod scene;
 mod sections;
 mod svg;
@@ -25,6 +27,7 @@ mod svg;
 pub use calibration::calibration_report;
 pub use comparison::{comparison_report, MethodRun};
 pub use registration::registration_report;
+pub use robots::robots_report;
 
 use crate::camera::{write_rgb_png, RgbImage};
 use crate::error::{Error, Result};

@@ -300,6 +300,132 @@ pub fn histogram(title: &str, x_label: &str, max: f64, hists: &[(&str, &str, &[u
     f.finish()
 }
 
+/// A node of [`graph_top_view`]: its name, where it stands (x, y in metres, `None`: no position) and its
+/// CSS colour.
+pub struct GraphNode {
+    /// The label.
+    pub name: String,
+    /// Position seen from above, metres.
+    pub at: Option<[f64; 2]>,
+    /// CSS colour.
+    pub colour: String,
+}
+
+/// An edge of [`graph_top_view`] between two nodes (indices), drawn in a CSS colour, dashed or not, with a
+/// label at its middle.
+pub struct GraphEdgeMark {
+    /// One end.
+    pub from: usize,
+    /// The other end.
+    pub to: usize,
+    /// CSS colour.
+    pub colour: String,
+    /// Dashed (an edge the solution does not use).
+    pub dashed: bool,
+    /// Text at the middle (empty: none).
+    pub label: String,
+}
+
+/// A graph seen from above at true scale (equal x and y units, y up): nodes with a position where they
+/// stand, nodes without one in a row below the plot, edges as lines between them.
+pub fn graph_top_view(title: &str, nodes: &[GraphNode], edges: &[GraphEdgeMark]) -> String {
+    const GH: f64 = 380.0;
+    const ROW: f64 = 40.0;
+    let placed: Vec<[f64; 2]> = nodes.iter().filter_map(|n| n.at).collect();
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in &placed {
+        for k in 0..2 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    if placed.is_empty() {
+        lo = [-1.0, -1.0];
+        hi = [1.0, 1.0];
+    }
+    let has_row = nodes.iter().any(|n| n.at.is_none());
+    let (x0, x1) = (M.0 + 20.0, W - M.1 - 60.0);
+    let (y_top, y_bottom) = (M.2 + 20.0, GH - 30.0 - if has_row { ROW } else { 0.0 });
+    let (dx, dy) = ((hi[0] - lo[0]).max(1e-3), (hi[1] - lo[1]).max(1e-3));
+    let scale = ((x1 - x0) / dx).min((y_bottom - y_top) / dy);
+    let (cx, cy) = ((lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0);
+    let mut unplaced = 0usize;
+    let pos: Vec<(f64, f64)> = nodes
+        .iter()
+        .map(|n| match n.at {
+            Some(p) => (
+                (x0 + x1) / 2.0 + (p[0] - cx) * scale,
+                (y_top + y_bottom) / 2.0 - (p[1] - cy) * scale,
+            ),
+            None => {
+                unplaced += 1;
+                (x0 + 110.0 * (unplaced - 1) as f64, GH - 24.0)
+            }
+        })
+        .collect();
+    let mut out = String::new();
+    let _ = write!(
+        out,
+        r#"<svg class="chart" viewBox="0 0 {W} {GH}" width="{W}" height="{GH}" role="img" aria-label="{t}"><text x="{M0}" y="16" class="title">{t}</text><rect x="{M0}" y="{M2}" width="{}" height="{}" class="plot"/>"#,
+        W - M.1 - M.0,
+        GH - 30.0 - M.2 - if has_row { ROW } else { 0.0 } + 10.0,
+        t = esc(title),
+        M0 = M.0,
+        M2 = M.2,
+    );
+    if has_row {
+        let _ = write!(
+            out,
+            r#"<text x="{}" y="{:.1}" class="tick">no pose:</text>"#,
+            M.0 - 56.0,
+            GH - 20.0
+        );
+    }
+    for e in edges {
+        let (Some(a), Some(b)) = (pos.get(e.from), pos.get(e.to)) else {
+            continue;
+        };
+        let _ = write!(
+            out,
+            r#"<line x1="{:.1}" y1="{:.1}" x2="{:.1}" y2="{:.1}" stroke="{}" stroke-width="2.5"{}/>"#,
+            a.0,
+            a.1,
+            b.0,
+            b.1,
+            esc(&e.colour),
+            if e.dashed {
+                r#" stroke-dasharray="6 4""#
+            } else {
+                ""
+            }
+        );
+        if !e.label.is_empty() {
+            let _ = write!(
+                out,
+                r#"<text x="{:.1}" y="{:.1}" class="tick" text-anchor="middle">{}</text>"#,
+                (a.0 + b.0) / 2.0,
+                (a.1 + b.1) / 2.0 - 4.0,
+                esc(&e.label)
+            );
+        }
+    }
+    for (n, p) in nodes.iter().zip(&pos) {
+        let _ = write!(
+            out,
+            r#"<circle cx="{:.1}" cy="{:.1}" r="7" fill="{c}" stroke="{dark}"/><text x="{:.1}" y="{:.1}" class="axis">{}</text>"#,
+            p.0,
+            p.1,
+            p.0 + 10.0,
+            p.1 + 4.0,
+            esc(&n.name),
+            c = esc(&n.colour),
+            dark = "#333"
+        );
+    }
+    out.push_str("</svg>");
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -340,5 +466,44 @@ mod tests {
         assert!(b.contains("tick bad"));
         let h = histogram("h", "mm", 2.0, &[("a", "#0f0", &[1, 2, 3])]);
         assert!(h.contains("<path"));
+        let node = |name: &str, at| GraphNode {
+            name: name.into(),
+            at,
+            colour: "#f80".into(),
+        };
+        let g = graph_top_view(
+            "g",
+            &[
+                node("a", Some([0.0, 0.0])),
+                node("b<", Some([2.0, 0.0])),
+                node("c", None),
+            ],
+            &[
+                GraphEdgeMark {
+                    from: 0,
+                    to: 1,
+                    colour: "#0a0".into(),
+                    dashed: false,
+                    label: "0.01°".into(),
+                },
+                GraphEdgeMark {
+                    from: 1,
+                    to: 2,
+                    colour: "#aaa".into(),
+                    dashed: true,
+                    label: String::new(),
+                },
+            ],
+        );
+        assert!(g.starts_with("<svg") && g.ends_with("</svg>"));
+        assert_eq!(g.matches("<circle").count(), 3);
+        assert_eq!(g.matches("<line").count(), 2);
+        assert!(g.contains("b&lt;") && g.contains("no pose:") && g.contains("stroke-dasharray"));
+        // True scale: a and b stand 2 m apart on one row, their circles on one line.
+        let ys: Vec<&str> = g
+            .match_indices("cy=\"")
+            .map(|(i, _)| &g[i + 4..i + 9])
+            .collect();
+        assert_eq!(ys[0], ys[1]);
     }
 }
