@@ -34,13 +34,19 @@ fn code(p: &Path) -> String {
         .join("\n")
 }
 
-/// Module → (module it names → files that name it).
-fn graph(src: &Path) -> BTreeMap<String, BTreeMap<String, BTreeSet<String>>> {
+/// Module → (module it names → files that name it), for the modules in `dir` (each file or directory
+/// but `skip`): module A depends on module B when a file of A names `{prefix}B`, or, for a file directly in
+/// `dir`, `super::B`.
+fn graph_in(
+    dir: &Path,
+    prefix: &str,
+    skip: &[&str],
+) -> BTreeMap<String, BTreeMap<String, BTreeSet<String>>> {
     let mut modules = BTreeMap::new();
-    for e in std::fs::read_dir(src).unwrap().flatten() {
+    for e in std::fs::read_dir(dir).unwrap().flatten() {
         let p = e.path();
         let name = p.file_stem().unwrap().to_string_lossy().to_string();
-        if name == "lib" || name == "main" || name == "cli" {
+        if skip.contains(&name.as_str()) {
             continue;
         }
         let mut files = Vec::new();
@@ -59,20 +65,31 @@ fn graph(src: &Path) -> BTreeMap<String, BTreeMap<String, BTreeSet<String>>> {
         let entry = g.entry(m.clone()).or_default();
         for f in files {
             let c = code(f);
-            for (i, _) in c.match_indices("crate::") {
-                let rest = &c[i + 7..];
+            let mut named: Vec<&str> = c
+                .match_indices(prefix)
+                .map(|(i, _)| &c[i + prefix.len()..])
+                .collect();
+            if f.parent() == Some(dir) {
+                named.extend(c.match_indices("super::").map(|(i, _)| &c[i + 7..]));
+            }
+            for rest in named {
                 let other: String = rest
                     .chars()
                     .take_while(|ch| ch.is_ascii_alphanumeric() || *ch == '_')
                     .collect();
                 if other != *m && names.contains(&other) {
-                    let rel = f.strip_prefix(src).unwrap().display().to_string();
+                    let rel = f.strip_prefix(dir).unwrap().display().to_string();
                     entry.entry(other).or_default().insert(rel);
                 }
             }
         }
     }
     g
+}
+
+/// The crate's top-level modules.
+fn graph(src: &Path) -> BTreeMap<String, BTreeMap<String, BTreeSet<String>>> {
+    graph_in(src, "crate::", &["lib", "main", "cli"])
 }
 
 /// Strongly connected components of more than one module (Tarjan's algorithm).
@@ -137,12 +154,9 @@ fn cycles(g: &BTreeMap<String, BTreeMap<String, BTreeSet<String>>>) -> Vec<Vec<S
     s.out
 }
 
-#[test]
-fn the_module_graph_has_no_cycle() {
-    let src = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("src");
-    let g = graph(&src);
-    assert!(g.len() > 10, "found only {} modules in src/", g.len());
-    let found = cycles(&g);
+/// Fails naming every cycle of `g` and the files that close it.
+fn assert_acyclic(g: &BTreeMap<String, BTreeMap<String, BTreeSet<String>>>) {
+    let found = cycles(g);
     let explain: Vec<String> = found
         .iter()
         .map(|comp| {
@@ -158,6 +172,52 @@ fn the_module_graph_has_no_cycle() {
         })
         .collect();
     assert!(found.is_empty(), "{}", explain.join("\n"));
+}
+
+#[test]
+fn the_module_graph_has_no_cycle() {
+    let src = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("src");
+    let g = graph(&src);
+    assert!(g.len() > 10, "found only {} modules in src/", g.len());
+    assert_acyclic(&g);
+}
+
+/// Inside `calibration`, too: the settings (`config`), the fused clouds (`fused`), the initialisers, the
+/// pairwise engine (`robot_to_robot`, `hypotheses`) and the robot graph (`multi_robot`, `routes`,
+/// `plan_robots`) import one way (docs/architecture.md, "Inside `calibration`").
+#[test]
+fn the_calibration_modules_import_one_way() {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("src/calibration");
+    let g = graph_in(&dir, "crate::calibration::", &["mod"]);
+    assert!(
+        g.len() > 15,
+        "found only {} modules in src/calibration/",
+        g.len()
+    );
+    // The rooms: nothing below the pairwise engine names it, and the engine does not name the graph.
+    let names = |m: &str| -> BTreeSet<String> { g[m].keys().cloned().collect() };
+    for low in [
+        "config",
+        "fused",
+        "initializer",
+        "board_init",
+        "marker_init",
+        "feature_init",
+        "hypotheses",
+    ] {
+        assert!(
+            !names(low).contains("robot_to_robot"),
+            "{low} names robot_to_robot: {:?}",
+            g[low]
+        );
+    }
+    for graph_module in ["multi_robot", "routes", "plan_robots"] {
+        assert!(
+            !names("robot_to_robot").contains(graph_module),
+            "robot_to_robot names {graph_module}"
+        );
+    }
+    assert_acyclic(&g);
 }
 
 #[test]

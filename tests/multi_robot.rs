@@ -228,6 +228,107 @@ fn a_robot_whose_frames_show_another_scene_is_not_calibrated() {
         out.contains("T_left_right: right base -> left base"),
         "{out}"
     );
+    // plan names robot3 as the weakest base and says why each of its pairs does not count.
+    let (code, plan, err) = depthcal(&["plan", dir.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 3, "{err}");
+    let p = json(&plan);
+    let r = &p["robots"];
+    assert_eq!(r["weakest"], "robot3", "{r}");
+    assert!(r["bases"][1]["sigma_mm"].is_null());
+    for q in r["pairs"].as_array().unwrap() {
+        assert_eq!(q["verdict"], "not_usable", "{q}");
+        assert!(q["advice"]
+            .as_str()
+            .unwrap()
+            .contains("not trusted on its own"));
+    }
+}
+
+#[test]
+fn compare_sets_every_route_to_each_base_side_by_side() {
+    let dir = scratch("multi-compare");
+    simulate(&dir, 3, 6);
+    let (code, out, err) = depthcal(&["compare", dir.to_str().unwrap(), "--json"]);
+    let v = json(&out);
+    assert_eq!(code, 0, "{err}\n{}", v["reasons"]);
+    common::assert_documented(&v);
+    let pairs = v["pairs"].as_array().unwrap();
+    assert_eq!(pairs.len(), 3);
+    for r in v["robots"].as_array().unwrap() {
+        common::assert_documented_section(r, "depthcal.routes/1", " robot entries");
+        let name = r["name"].as_str().unwrap();
+        let routes = r["routes"].as_array().unwrap();
+        let names: Vec<&str> = routes
+            .iter()
+            .map(|x| x["route"].as_str().unwrap())
+            .collect();
+        let other = if name == "right" { "robot3" } else { "right" };
+        assert_eq!(
+            names,
+            [
+                "joint solution".to_string(),
+                format!("left - {name}"),
+                format!("left - {other} - {name}")
+            ],
+            "{name}"
+        );
+        assert_eq!(routes[0]["from_joint"]["translation_m"], 0.0);
+        // The direct route is the pair's own result.
+        let direct = pairs
+            .iter()
+            .find(|p| p["reference"] == "left" && p["other"] == name)
+            .unwrap();
+        assert_eq!(routes[1]["transform"], direct["transform"]);
+        for x in routes {
+            common::assert_documented_section(x, "depthcal.routes/1", " route entries");
+            assert_eq!(x["trusted"], true, "{x}");
+            let e = &x["error_vs_truth"];
+            let (deg, m) = (
+                e["rotation_deg"].as_f64().unwrap(),
+                e["translation_m"].as_f64().unwrap(),
+            );
+            assert!(
+                deg < 0.1 && m < 0.002,
+                "{name} {}: {deg} deg {m} m",
+                x["route"]
+            );
+            let z = x["normalised_error"]["pose"].as_f64().unwrap();
+            assert!(z < 3.0, "{name} {}: normalised {z}", x["route"]);
+        }
+        assert!(names.contains(&r["best_vs_truth"].as_str().unwrap()));
+    }
+    // The text shows the same routes.
+    let (code, out, _) = depthcal(&["compare", dir.to_str().unwrap()]);
+    assert_eq!(code, 0);
+    assert!(
+        out.contains("left - right - robot3") && out.contains("closest to the truth"),
+        "{out}"
+    );
+    // plan: every base's strength, the weakest is the largest 1-σ, the planned pair touches it.
+    let (code, out, err) = depthcal(&["plan", dir.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let p = json(&out);
+    common::assert_documented(&p);
+    let r = &p["robots"];
+    let bases = r["bases"].as_array().unwrap();
+    assert_eq!(bases.len(), 2);
+    let weakest = bases
+        .iter()
+        .max_by(|a, b| {
+            a["sigma_mm"]
+                .as_f64()
+                .unwrap()
+                .total_cmp(&b["sigma_mm"].as_f64().unwrap())
+        })
+        .unwrap();
+    assert_eq!(r["weakest"], weakest["robot"]);
+    let planned = r["planned_pair"].as_array().unwrap();
+    assert!(planned.contains(&r["weakest"]), "{r}");
+    assert_eq!(p["reference"], planned[0]);
+    assert_eq!(p["other"], planned[1]);
+    assert_eq!(r["pairs"].as_array().unwrap().len(), 2);
+    assert_eq!(p["hand_eyes"].as_array().unwrap().len(), 2);
+    assert!(r["pair_inputs_sigma_mm"].as_f64().unwrap() > 0.0);
 }
 
 #[test]
@@ -247,6 +348,17 @@ fn bad_cells_and_flags_of_many_robots_are_errors() {
         assert_ne!(code, 0, "{args:?}");
         assert_ne!(code, 3, "{args:?}: an error, not an untrusted result");
         assert!(err.contains(want), "{args:?}: {err}");
+    }
+    // compare: the image methods and --no-refine give one pair.
+    for (args, want) in [
+        (vec!["--methods", "marker"], "--methods depth"),
+        (vec!["--no-refine"], "for cells of two robots"),
+    ] {
+        let mut a = vec!["compare", cell];
+        a.extend(args.iter().copied());
+        let (code, _, err) = depthcal(&a);
+        assert_eq!(code, 1, "compare {args:?}: {err}");
+        assert!(err.contains(want), "compare {args:?}: {err}");
     }
     // A reference that is not a robot.
     let toml = std::fs::read_to_string(dir.join("cell.toml")).unwrap();

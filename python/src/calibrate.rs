@@ -7,7 +7,7 @@ use crate::register::to_json;
 use depthcal::calibration::initializer::UserGuess;
 use depthcal::calibration::multi_robot::calibrate_robots;
 use depthcal::calibration::robot_to_robot::{
-    calibrate_request, robot_pair, CalibrateConfig, CalibrateRequest, Calibration,
+    calibrate_request, CalibrateConfig, CalibrateRequest, Calibration,
 };
 use depthcal::cell::Cell;
 use depthcal::geometry::robot_formats::{
@@ -239,7 +239,7 @@ fn frames(
     frame_id: Option<String>,
     child_frame_id: Option<String>,
 ) -> depthcal::Result<Frames> {
-    let (r, o) = robot_pair(cell)?;
+    let (r, o) = cell.robot_pair()?;
     let explicit = frame_id.is_some() || child_frame_id.is_some();
     let parent = frame_id.unwrap_or_else(|| cell.frame_id(&r.name));
     let child = child_frame_id.unwrap_or_else(|| cell.frame_id(&o.name));

@@ -9,7 +9,6 @@
 
 use crate::calibration::average::PoseAverage;
 use crate::calibration::initializer::{InitialGuess, Initializer, InitializerInput};
-use crate::calibration::robot_to_robot::robot_pair;
 use crate::cell::{Board, Cell, CellRobot};
 use crate::error::{Error, Result};
 use crate::geometry::transform::isometry_from_rows;
@@ -165,7 +164,7 @@ pub fn checkerboard_initializer_with(
     given: &[(String, PathBuf)],
     find: &mut BoardFinder<'_>,
 ) -> Result<(CheckerboardInitializer, Vec<String>)> {
-    let (reference, other) = robot_pair(cell)?;
+    let (reference, other) = cell.robot_pair()?;
     let manifest = cell.dir.join(crate::cell::MANIFEST_FILE);
     for (name, _) in given {
         cell.robot(name)?;

@@ -23,8 +23,9 @@
 //!    ([`crate::registration::RegisterConfig::ambiguity_ratio`]) makes the answer ambiguous: both explain
 //!    the data at full resolution.
 
+use crate::calibration::fused::FusedCell;
 use crate::calibration::initializer::sight;
-use crate::calibration::robot_to_robot::{FreeSpaceCheck, FusedCell};
+use crate::calibration::visibility::FreeSpaceCheck;
 use crate::calibration::visibility::{
     free_space_violation, self_consistent_margin, RobotSight, VisibilityConfig,
 };

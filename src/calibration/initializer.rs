@@ -105,7 +105,7 @@ impl SearchConfig {
 #[derive(Clone, Debug)]
 pub struct GlobalRegistration {
     /// Registration settings (its RANSAC constraint is replaced by the priors' constraint). Default: those
-    /// of [`crate::calibration::robot_to_robot::CalibrateConfig`].
+    /// of [`crate::calibration::config::CalibrateConfig`].
     pub config: RegisterConfig,
     /// Weigh the hypotheses by their free-space consistency with both robots' depth frames
     /// ([`crate::calibration::visibility`]) when the fused clouds carry their frames' depth views
@@ -113,17 +113,6 @@ pub struct GlobalRegistration {
     pub visibility: Option<VisibilityConfig>,
     /// Which searches run and how many hypotheses each hands on.
     pub search: SearchConfig,
-}
-
-impl Default for GlobalRegistration {
-    fn default() -> Self {
-        let c = crate::calibration::robot_to_robot::CalibrateConfig::default();
-        GlobalRegistration {
-            config: c.register,
-            visibility: Some(c.visibility),
-            search: c.search,
-        }
-    }
 }
 
 impl Initializer for GlobalRegistration {

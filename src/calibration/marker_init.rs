@@ -485,7 +485,7 @@ pub fn marker_initializer_with(
     cfg: &MarkerMethodConfig,
     find: &mut SightingFinder<'_>,
 ) -> Result<(MarkerInitializer, Vec<String>)> {
-    let (reference, other) = crate::calibration::robot_to_robot::robot_pair(cell)?;
+    let (reference, other) = cell.robot_pair()?;
     let manifest = cell.dir.join(crate::cell::MANIFEST_FILE);
     let target = crate::cell::MarkerTarget::from_manifest_extra(&cell.manifest.extra, &manifest)?
         .ok_or_else(|| {

@@ -8,11 +8,11 @@
 //! and the first other robot only. A robot is calibrated when trusted pairs that agree with their loops
 //! link it to the reference; otherwise it is named, with every pair's reason, and given no pose.
 
+use crate::calibration::config::CalibrateConfig;
+use crate::calibration::fused::{fuse_robots, read_priors, FusedRobots};
 use crate::calibration::initializer::Initializer;
 use crate::calibration::pose_graph::{solve_graph, EdgeCheck, EdgeVerdict, GraphEdge};
-use crate::calibration::robot_to_robot::{
-    fuse_robots, read_priors, refine_pair, CalibrateConfig, Calibration, FusedRobots,
-};
+use crate::calibration::robot_to_robot::{refine_pair, Calibration};
 use crate::calibration::uncertainty::{normalised_error, NormalisedError};
 use crate::cell::{Cell, CellRobot};
 use crate::error::{Error, Result};

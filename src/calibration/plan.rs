@@ -19,10 +19,11 @@
 //! scored cloud sizes and the fit's residual) and the candidates are picked greedily by the largest 1-σ
 //! they leave. The figures are predictions to rank poses by, not promises.
 
+use crate::calibration::fused::FusedCell;
 use crate::calibration::handeye::depth::observe::{directions, DofObservability, WeakDirection};
 use crate::calibration::handeye::depth::plan::SuggestedPose;
 use crate::calibration::handeye::depth::{refine_hand_eye_from_depth, HandEyeDepthConfig};
-use crate::calibration::robot_to_robot::{robot_pair, Calibration, FusedCell};
+use crate::calibration::robot_to_robot::Calibration;
 use crate::cell::{Cell, CellRobot};
 use crate::error::{Error, Result};
 use crate::geometry::pose::KukaPose;
@@ -426,14 +427,33 @@ fn view_information(
     (h, seen)
 }
 
+/// The RMS distance of `points` from their centroid, metres (at least 1 mm): the length at which a
+/// rotation's 1-σ is counted in millimetres.
+pub fn rms_radius(points: &[[f32; 3]]) -> f64 {
+    let n = points.len().max(1) as f64;
+    let centroid = points.iter().fold(Vector3::zeros(), |a, p| {
+        a + Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+    }) / n;
+    (points
+        .iter()
+        .map(|p| (Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64) - centroid).norm_squared())
+        .sum::<f64>()
+        / n)
+        .sqrt()
+        .max(1e-3)
+}
+
+/// The largest 1-σ of covariance `cov`, millimetres (rotations counted at radius `l`, metres).
+pub fn directions_sigma_mm(cov: &Matrix6<f64>, l: f64) -> f64 {
+    directions(&((cov + cov.transpose()) * 0.5), l)
+        .first()
+        .map_or(f64::INFINITY, |d| d.1 * 1e3)
+}
+
 /// The largest 1-σ (mm-equivalent at radius `l`) of the inverse of information `h`.
 fn largest_sigma_mm(h: &Matrix6<f64>, l: f64) -> f64 {
-    match h.try_inverse() {
-        Some(c) => directions(&((c + c.transpose()) * 0.5), l)
-            .first()
-            .map_or(f64::INFINITY, |d| d.1 * 1e3),
-        None => f64::INFINITY,
-    }
+    h.try_inverse()
+        .map_or(f64::INFINITY, |c| directions_sigma_mm(&c, l))
 }
 
 /// Plans the next captures of a calibrated cell: `cal` and `fused` from [`crate::calibration::robot_to_robot::calibrate_request`]
@@ -445,13 +465,23 @@ pub fn plan_cell(
     fused: &FusedCell,
     cfg: &PlanConfig,
 ) -> Result<CellPlan> {
+    plan_pair(cell.robot_pair()?, cal, fused, cfg)
+}
+
+/// [`plan_cell`] for the two robots of `cal` (its reference first) and their fused clouds `fused`: a pair
+/// of a cell of three or more robots ([`crate::calibration::plan_robots`]).
+pub fn plan_pair(
+    (reference, other): (&CellRobot, &CellRobot),
+    cal: &Calibration,
+    fused: &FusedCell,
+    cfg: &PlanConfig,
+) -> Result<CellPlan> {
     cfg.validate()?;
     if !cal.refined || fused.reference.cloud.is_empty() || fused.other.cloud.is_empty() {
         return Err(Error::InvalidInput(
             "the plan needs a refined calibration with both fused clouds".into(),
         ));
     }
-    let (reference, other) = robot_pair(cell)?;
     let robots = [reference, other];
     let clouds = [&fused.reference, &fused.other];
     let hand_eyes = robots
@@ -470,18 +500,7 @@ pub fn plan_cell(
         let v = eig.eigenvectors.column(k);
         h0 += v * v.transpose() / eig.eigenvalues[k].max(floor);
     }
-    let ref_pts = &fused.reference.cloud.points;
-    let n = ref_pts.len().max(1) as f64;
-    let centroid = ref_pts.iter().fold(Vector3::zeros(), |a, p| {
-        a + Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)
-    }) / n;
-    let l = (ref_pts
-        .iter()
-        .map(|p| (Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64) - centroid).norm_squared())
-        .sum::<f64>()
-        / n)
-        .sqrt()
-        .max(1e-3);
+    let l = rms_radius(&fused.reference.cloud.points);
     let base_name = format!("the {} base", reference.name);
     let weak: Vec<BaseWeakDirection> = directions(&reg, l)
         .into_iter()

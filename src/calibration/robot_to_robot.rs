@@ -1,192 +1,29 @@
 //! Robot-to-robot calibration of a cell: fuse each robot's frames in its base frame, get an initial
 //! `T_base1_base2` from an [`Initializer`], refine it with trimmed robust ICP, and report its quality.
 
-use crate::calibration::consistency::{robot_consistency, ConsistencyConfig, RobotConsistency};
-use crate::calibration::handeye::depth::check::{
-    check_hand_eye_under_scatter, HandEyeCheck, HandEyeCheckConfig,
-};
+use crate::calibration::consistency::{robot_consistency, RobotConsistency};
+use crate::calibration::handeye::depth::check::HandEyeCheck;
 use crate::calibration::hypotheses::{
     choose, refine_and_judge, without_robot_bodies, FreeSpaceTest,
 };
-use crate::calibration::initializer::{InitialGuess, Initializer, InitializerInput, SearchConfig};
-use crate::calibration::pose_scatter::{estimate_pose_scatter, PoseScatter, PoseScatterConfig};
-use crate::calibration::priors::CellPriors;
+use crate::calibration::initializer::{InitialGuess, Initializer, InitializerInput};
+use crate::calibration::pose_scatter::PoseScatter;
 use crate::calibration::uncertainty::{
     cloud_motion_covariance, inputs_covariance, normalised_error, NormalisedError,
 };
-use crate::calibration::visibility::VisibilityConfig;
 use crate::cell::{Cell, CellRobot};
-use crate::error::{Error, Result};
-use crate::fusion::{fuse_robot, FuseConfig, FusedCloud};
+use crate::error::Result;
 use crate::geometry::transform::pose_error;
-use crate::registration::correspondence::MatchConfig;
 use crate::registration::pipeline::recheck_weak_directions;
 use crate::registration::quality::Degeneracy;
+use crate::registration::RegisterConfig;
 use crate::registration::Trust;
-use crate::registration::{IcpConfig, IcpFactor, RansacConfig, RegisterConfig, RobustKernel};
 use crate::timing::StageTimer;
 use nalgebra::{Isometry3, Matrix6};
-use serde::{Deserialize, Serialize};
-use std::time::Instant;
 
-/// Settings of [`calibrate`].
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct CalibrateConfig {
-    /// Fusion of each robot's frames (default: automatic voxel at 4 pixel footprints, no outlier removal
-    /// (the trimmed ICP and the robust kernel deal with stray points), no normals (registration estimates
-    /// its own)).
-    pub fuse: FuseConfig,
-    /// Registration settings for the refinement (and for the depth initialiser): three ICP levels and
-    /// one-way feature matches by default.
-    pub register: RegisterConfig,
-    /// Use the `[priors]` of `cell.toml` (default true).
-    pub use_priors: bool,
-    /// Seed of every randomised step: calibrate's one seed (the initialisers and the refinement take it;
-    /// `register.seed` must be left out).
-    pub seed: u64,
-    /// The marker method's settings (`--method marker`).
-    pub marker: crate::calibration::marker_init::MarkerMethodConfig,
-    /// The 2D-feature method's settings (`--method features`).
-    pub features: crate::calibration::feature_init::FeatureMethodConfig,
-    /// The check of each robot's own frames against each other ([`crate::calibration::consistency`]).
-    pub consistency: ConsistencyConfig,
-    /// Registration uses only the fused points within this multiple of the robot's median range (the
-    /// distance from a point to the cameras that saw it); `None` keeps every point. Default 2.5: depth noise
-    /// grows with the square of the range, so a surface at 2.5 times the median range is about six times
-    /// noisier than the workspace the cameras look at, and a wide far floor or wall then outweighs the
-    /// shared objects in every stage (measured on foreign cells with a floor in view: untrusted without
-    /// the cut, 0.007° / 0.13 mm with it; 2.0 cost the demo cell 0.02° / 0.25 mm). The free-space test still uses whole frames.
-    pub max_range_factor: Option<f64>,
-    /// `--refine-hand-eye`: the per-robot hand-eye refinements from depth, the joint refinement of both
-    /// hand-eyes with `T_base1_base2`, and whether its base-to-base transform is adopted
-    /// (docs/handeye.md#hand-eye-from-depth).
-    pub refine_hand_eye: crate::calibration::handeye::depth::joint::RefineHandEyeConfig,
-    /// The check of each robot's stated hand-eye (and its 1-σ) against its own depth frames
-    /// ([`crate::calibration::handeye::depth::check`]); an inconsistent one makes the result untrusted.
-    pub hand_eye_check: HandEyeCheckConfig,
-    /// The free-space test of hypotheses and of the result ([`crate::calibration::visibility`]); its
-    /// `robot_body_radius_m` also leaves the other robot's body out of the refinement under each
-    /// hypothesis ([`crate::calibration::hypotheses`]).
-    pub visibility: VisibilityConfig,
-    /// The depth initialiser's searches ([`SearchConfig`]).
-    pub search: SearchConfig,
-    /// Each robot's pose scatter from its own frames, and the frames moved by it before they are fused
-    /// ([`crate::calibration::pose_scatter`]).
-    pub pose_scatter: PoseScatterConfig,
-    /// Two robots' base origins stand at least this far apart, metres (default 0.12; 0 turns it off). Not
-    /// a prior of the cell but a fact of any cell: two bases cannot share one footprint, and the smallest
-    /// common arm's is 128 mm across (a UR3's). The global search drops hypotheses that put the bases
-    /// closer, and a result that does is not trusted. On cells whose robots each see mostly their own
-    /// side of the workspace, the clouds laid on each other (the bases 6-77 mm apart) explained the data
-    /// better than the truth and were the answer on 4 of 10 wrong low-overlap cells (docs/accuracy.md).
-    pub min_base_distance_m: f64,
-    /// Cells of three or more robots: the pose graph over the pairwise results
-    /// (`calibration::multi_robot`, which builds on this module).
-    pub pose_graph: crate::calibration::pose_graph::PoseGraphConfig,
-}
-
-impl Default for CalibrateConfig {
-    fn default() -> Self {
-        CalibrateConfig {
-            fuse: FuseConfig {
-                auto_voxel_factor: 4.0,
-                outlier: None,
-                normals: None,
-                // Each frame's depth in 4x4-pixel blocks, for the free-space test of the hypotheses.
-                depth_views: Some(4),
-                ..FuseConfig::default()
-            },
-            register: RegisterConfig {
-                icp_levels: 3,
-                // GICP with Tukey's kernel: from the truth on simulated cells it settles at a median
-                // 0.010° / 0.15 mm (worst of 6: 0.037° / 0.31 mm) where point-to-plane with Huber settled at
-                // 0.059° / 0.79 mm (worst 0.126° / 1.66 mm) (`tools/refine_probe.rs`).
-                icp: IcpConfig {
-                    factor: IcpFactor::Gicp,
-                    kernel: RobustKernel::Tukey,
-                    // Pairs between different surfaces (a face one robot saw against the edge of one the
-                    // other saw) bias the yaw where the robots share little.
-                    max_normal_angle_deg: Some(30.0),
-                    // GICP creeps along a cell's weakest direction: a foreign table cell needed 108
-                    // iterations at its middle level (40 left it 0.25° / 2.8 mm off and unconverged).
-                    // Cells that converge early do not pay for the larger budget.
-                    max_iterations: 150,
-                    ..IcpConfig::default()
-                },
-                // One-way matches: the priors already prune hypotheses hard, and on cells whose robots
-                // share little (35-50%) the mutual filter left too few true matches (measured).
-                matching: MatchConfig {
-                    mutual: false,
-                    ..MatchConfig::default()
-                },
-                // Many distinct hypotheses for the free-space test to choose from: at low overlap the
-                // truth is rarely among RANSAC's 50 best by feature inliers.
-                ransac: RansacConfig {
-                    verify_top: 300,
-                    ..RansacConfig::default()
-                },
-                // GICP on fused cells leaves a smaller systematic part than the generic floor assumes:
-                // with 0.12 voxel the normalised errors of seeded cells had an RMS of 0.21 (`cell_sweep`).
-                systematic_voxel_fraction: 0.04,
-                // Fused clouds know which side each surface was seen from.
-                sided: true,
-                ..RegisterConfig::default()
-            },
-            use_priors: true,
-            seed: 0,
-            marker: Default::default(),
-            features: Default::default(),
-            consistency: ConsistencyConfig::default(),
-            max_range_factor: Some(2.5),
-            refine_hand_eye: Default::default(),
-            hand_eye_check: HandEyeCheckConfig::default(),
-            visibility: VisibilityConfig::default(),
-            search: SearchConfig::default(),
-            pose_scatter: PoseScatterConfig::default(),
-            min_base_distance_m: 0.12,
-            pose_graph: Default::default(),
-        }
-    }
-}
-
-impl CalibrateConfig {
-    /// Checks the ranges of every field and nested configuration; the error names the field, e.g.
-    /// `register.icp.max_iterations`. [`calibrate_request`] calls it first.
-    pub fn validate(&self) -> Result<()> {
-        self.fuse.validate()?;
-        self.register.validate().map_err(|e| e.within("register"))?;
-        if self.register.seed != RegisterConfig::default().seed && self.register.seed != self.seed {
-            return Err(Error::config(
-                "register.seed",
-                format!(
-                    "calibrate has one seed, `seed` ({}); set it there instead of register.seed ({})",
-                    self.seed, self.register.seed
-                ),
-            ));
-        }
-        if self.register.ransac.constraint != Default::default() {
-            return Err(Error::config(
-                "register.ransac.constraint",
-                "calibrate takes its pose constraint from the cell's [priors] (cell.toml); state the priors there",
-            ));
-        }
-        self.marker.validate()?;
-        self.features.validate()?;
-        self.consistency.validate()?;
-        if let Some(f) = self.max_range_factor {
-            crate::error::check::positive("max_range_factor", f)?;
-        }
-        self.refine_hand_eye.validate()?;
-        self.hand_eye_check.validate()?;
-        self.visibility.validate()?;
-        self.pose_scatter.validate()?;
-        self.search.validate()?;
-        crate::error::check::non_negative("min_base_distance_m", self.min_base_distance_m)?;
-        self.pose_graph.validate()?;
-        Ok(())
-    }
-}
+pub use crate::calibration::config::CalibrateConfig;
+pub use crate::calibration::fused::{fuse_cell, fuse_robots, FusedCell, FusedRobots};
+pub use crate::calibration::visibility::FreeSpaceCheck;
 
 /// The result of [`calibrate`].
 #[derive(Clone, Debug)]
@@ -262,269 +99,55 @@ pub struct Calibration {
     pub pose_scatter: Vec<PoseScatter>,
 }
 
-/// The free-space test of the final transform.
-#[derive(Clone, Debug, Serialize)]
-pub struct FreeSpaceCheck {
-    /// Mean of both ways' violation fractions at the final transform, 0–1.
-    pub violation: f64,
-    /// The worse of the two robots' own clouds against their own frames at the same margin, 0–1.
-    pub own_violation: f64,
-    /// The margin, metres.
-    pub margin_m: f64,
-}
-
-/// The two robots of a cell: the reference and the first other one.
-pub fn robot_pair(cell: &Cell) -> Result<(&CellRobot, &CellRobot)> {
-    let reference = cell.reference();
-    let other = cell
-        .robots
-        .iter()
-        .find(|r| r.name != reference.name)
-        .ok_or_else(|| {
-            Error::InvalidInput(format!(
-                "{}: the cell needs two robots, it names only {:?}",
-                cell.dir.join("cell.toml").display(),
-                reference.name
-            ))
-        })?;
-    Ok((reference, other))
-}
-
-/// Both robots' fused clouds and the cell's priors: what [`refine_cell`] and the initialisers work on.
-/// Fuse once with [`fuse_cell`] to compare several initialisers on the same clouds.
-#[derive(Clone, Debug)]
-pub struct FusedCell {
-    /// The reference robot's fused cloud (base1 frame, metres).
-    pub reference: FusedCloud,
-    /// The other robot's fused cloud (base2 frame, metres).
-    pub other: FusedCloud,
-    /// The priors used (empty when `use_priors` is off).
-    pub priors: CellPriors,
-    /// Wall time of the fusion, milliseconds.
-    pub fuse_ms: f64,
-    /// Each robot's stated hand-eye against its own depth frames (reference, other; empty when
-    /// `hand_eye_check.enabled` is off).
-    pub hand_eye_checks: Vec<HandEyeCheck>,
-    /// Wall time of those checks, milliseconds.
-    pub hand_eye_check_ms: f64,
-    /// Each robot's pose scatter (reference, other; empty when `pose_scatter.enabled` is off or nothing
-    /// was fused).
-    pub pose_scatter: Vec<PoseScatter>,
-    /// Wall time of the pose scatter estimates and the fusion again of moved frames, milliseconds.
-    pub pose_scatter_ms: f64,
-    /// The robots as fused (reference, other): the cell's, with the frames moved by their pose
-    /// corrections and the pose 1-σ widened to the scatter where it was applied; empty when nothing was
-    /// fused.
-    pub robots: Vec<CellRobot>,
-}
-
-impl FusedCell {
-    /// No clouds, only the priors: for initialisers that do not need the clouds, without refinement.
-    pub fn without_clouds(cell: &Cell, cfg: &CalibrateConfig) -> Result<Self> {
-        Ok(FusedCell::from_clouds(
-            FusedCloud::default(),
-            FusedCloud::default(),
-            read_priors(cell, cfg)?,
-        ))
-    }
-
-    /// Clouds fused elsewhere (each in its own robot's base frame) with `priors`: no hand-eye checks, no
-    /// pose scatter, the cell's robots as they are.
-    pub fn from_clouds(reference: FusedCloud, other: FusedCloud, priors: CellPriors) -> Self {
-        FusedCell {
-            reference,
-            other,
-            priors,
-            fuse_ms: 0.0,
+#[cfg(test)]
+impl Calibration {
+    /// A result of `reference` and `other` at the identity with a zero covariance, trusted, for unit tests
+    /// of what consumes results.
+    pub(crate) fn empty_for_tests(reference: &str, other: &str) -> Self {
+        Calibration {
+            reference: reference.into(),
+            other: other.into(),
+            transform: Isometry3::identity(),
+            covariance: Matrix6::zeros(),
+            initial: InitialGuess {
+                transform: Isometry3::identity(),
+                sigma_rotation_deg: 1.0,
+                sigma_translation_m: 0.01,
+                detail: String::new(),
+                ambiguity: None,
+                alternatives: Vec::new(),
+            },
+            method: "depth".into(),
+            refined: true,
+            fitness: None,
+            inlier_rmse: None,
+            overlap: None,
+            converged: true,
+            degeneracy: Degeneracy {
+                condition: f64::NAN,
+                weak: Vec::new(),
+                held: Vec::new(),
+            },
+            priors_used: Vec::new(),
+            fused_points: [0, 0],
+            frames: [0, 0],
+            error_vs_truth: None,
+            initial_error_vs_truth: None,
+            timings_ms: Vec::new(),
+            warnings: Vec::new(),
+            priors_assumed: false,
+            free_space: None,
+            ambiguity: None,
+            trust: Trust::new(),
+            inputs_covariance: Matrix6::zeros(),
+            normalised_error: None,
+            consistency: Vec::new(),
             hand_eye_checks: Vec::new(),
-            hand_eye_check_ms: 0.0,
+            icp_levels: Vec::new(),
+            hypotheses: Vec::new(),
             pose_scatter: Vec::new(),
-            pose_scatter_ms: 0.0,
-            robots: Vec::new(),
         }
     }
-}
-
-/// The `[priors]` of `cell.toml`, or none when `cfg.use_priors` is off.
-pub(crate) fn read_priors(cell: &Cell, cfg: &CalibrateConfig) -> Result<CellPriors> {
-    if cfg.use_priors {
-        CellPriors::from_manifest_extra(&cell.manifest.extra, &cell.dir.join("cell.toml"))
-    } else {
-        Ok(CellPriors::none())
-    }
-}
-
-/// Fuses both robots' frames in their own base frames (in parallel), reads the priors, and checks each
-/// robot's hand-eye against its depth frames (`cfg.hand_eye_check`).
-pub fn fuse_cell(cell: &Cell, cfg: &CalibrateConfig) -> Result<FusedCell> {
-    let (reference, other) = robot_pair(cell)?;
-    let priors = read_priors(cell, cfg)?;
-    let fused = fuse_robots(&[reference, other], cfg)?;
-    Ok(fused.pair(0, 1, priors))
-}
-
-/// Each robot's fused cloud (its own base frame) with what was learnt on the way: the output of
-/// [`fuse_robots`], from which [`FusedRobots::pair`] makes the [`FusedCell`] of any two robots.
-#[derive(Clone, Debug)]
-pub struct FusedRobots {
-    /// One fused cloud per robot, in the order given.
-    pub clouds: Vec<FusedCloud>,
-    /// Each robot's stated hand-eye against its own depth frames (empty when `hand_eye_check.enabled` is
-    /// off).
-    pub hand_eye_checks: Vec<HandEyeCheck>,
-    /// Each robot's pose scatter (empty when `pose_scatter.enabled` is off or a robot has no depth views).
-    pub pose_scatter: Vec<PoseScatter>,
-    /// The robots as fused: with the frames moved by their pose corrections and the pose 1-σ widened to the
-    /// scatter where it was applied.
-    pub robots: Vec<CellRobot>,
-    /// Wall times of the fusion, the pose scatter and the hand-eye checks, milliseconds.
-    pub fuse_ms: f64,
-    /// See `fuse_ms`.
-    pub pose_scatter_ms: f64,
-    /// See `fuse_ms`.
-    pub hand_eye_check_ms: f64,
-}
-
-impl FusedRobots {
-    /// The fused cell of robots `i` (the pair's reference) and `j` with `priors`.
-    pub fn pair(&self, i: usize, j: usize, priors: CellPriors) -> FusedCell {
-        FusedCell {
-            reference: self.clouds[i].clone(),
-            other: self.clouds[j].clone(),
-            priors,
-            fuse_ms: self.fuse_ms,
-            hand_eye_checks: pick_two(&self.hand_eye_checks, i, j),
-            hand_eye_check_ms: self.hand_eye_check_ms,
-            pose_scatter: pick_two(&self.pose_scatter, i, j),
-            pose_scatter_ms: self.pose_scatter_ms,
-            robots: pick_two(&self.robots, i, j),
-        }
-    }
-}
-
-/// Items `i` and `j` of `v`, or none when `v` is empty.
-fn pick_two<T: Clone>(v: &[T], i: usize, j: usize) -> Vec<T> {
-    if v.is_empty() {
-        Vec::new()
-    } else {
-        vec![v[i].clone(), v[j].clone()]
-    }
-}
-
-/// Fuses each robot's frames in its own base frame (the robots in parallel, stage by stage): the fusion,
-/// each robot's pose scatter from its own frames (the frames moved by it and fused again where it is
-/// applied), the side each surface was seen from, the range cut ([`CalibrateConfig::max_range_factor`]),
-/// and the check of each robot's stated hand-eye against its depth frames (`cfg.hand_eye_check`).
-pub fn fuse_robots(robots: &[&CellRobot], cfg: &CalibrateConfig) -> Result<FusedRobots> {
-    use rayon::prelude::*;
-    let t0 = Instant::now();
-    // Each fusion has sequential parts (index builds, voxel merges): the robots run side by side.
-    let mut clouds: Vec<FusedCloud> = robots
-        .par_iter()
-        .map(|r| fuse_robot(*r, &cfg.fuse, &|_| {}))
-        .collect::<Result<_>>()?;
-    let fuse_ms = t0.elapsed().as_secs_f64() * 1e3;
-    // Each robot's frames moved to agree with each other where their poses scatter, then fused again.
-    let t_scatter = Instant::now();
-    let mut pose_scatter = Vec::new();
-    let mut fused_robots: Vec<CellRobot> = robots.iter().map(|r| (*r).clone()).collect();
-    if cfg.pose_scatter.enabled && clouds.iter().all(|c| !c.views.is_empty()) {
-        let estimates: Vec<(PoseScatter, Option<FusedCloud>)> = robots
-            .par_iter()
-            .zip(clouds.par_iter())
-            .map(|(r, c)| {
-                let s = estimate_pose_scatter(r, &c.views, &cfg.pose_scatter)?;
-                let refused = if s.applied {
-                    Some(fuse_robot(&s.corrected(r), &cfg.fuse, &|_| {})?)
-                } else {
-                    None
-                };
-                Ok((s, refused))
-            })
-            .collect::<Result<_>>()?;
-        for (k, (s, cloud)) in estimates.into_iter().enumerate() {
-            if let Some(c) = cloud {
-                log::info!(
-                    "robot {}: poses scatter {:.2} mm / {:.3}° (RMS per axis); frames moved and fused again",
-                    s.robot,
-                    s.scatter_mm,
-                    s.scatter_deg
-                );
-                clouds[k] = c;
-            }
-            fused_robots[k] = s.corrected(&fused_robots[k]);
-            pose_scatter.push(s);
-        }
-    }
-    let pose_scatter_ms = t_scatter.elapsed().as_secs_f64() * 1e3;
-    for (c, r) in clouds.iter_mut().zip(robots) {
-        // The side each surface was seen from travels with the points as their normals.
-        c.make_sided();
-        if let Some(f) = cfg.max_range_factor {
-            let dropped = keep_within_range(c, f);
-            if dropped > 0 {
-                log::info!(
-                    "{}: {dropped} fused points beyond {f} x the median range left out of the registration",
-                    r.name
-                );
-            }
-        }
-    }
-    let t1 = Instant::now();
-    let hand_eye_checks = if cfg.hand_eye_check.enabled {
-        // On the cell's own poses: the moved frames could hide a hand-eye that is off. Where the poses
-        // scatter, the test allows for what the scatter alone makes the depth ask for.
-        (0..robots.len())
-            .into_par_iter()
-            .map(|k| {
-                let c = &clouds[k];
-                let views = (!c.views.is_empty()).then_some(c.views.as_slice());
-                let scatter = pose_scatter
-                    .get(k)
-                    .and_then(|s: &PoseScatter| s.hand_eye_covariance.as_ref());
-                check_hand_eye_under_scatter(robots[k], views, &cfg.hand_eye_check, scatter)
-            })
-            .collect::<Result<Vec<_>>>()?
-    } else {
-        Vec::new()
-    };
-    Ok(FusedRobots {
-        clouds,
-        hand_eye_checks,
-        pose_scatter,
-        robots: fused_robots,
-        fuse_ms,
-        pose_scatter_ms,
-        hand_eye_check_ms: t1.elapsed().as_secs_f64() * 1e3,
-    })
-}
-
-/// Drops the points of `cloud` farther than `factor` times its median range from the cameras that saw them
-/// ([`CalibrateConfig::max_range_factor`]); returns the number dropped. The median is over the depth
-/// samples (each point weighted by the samples fused into it), i.e. about the median depth of the frames:
-/// per point, a wide far floor fills most voxels of the fused cloud while the cameras look at the workspace.
-fn keep_within_range(cloud: &mut FusedCloud, factor: f64) -> usize {
-    let ranges = cloud.ranges();
-    if ranges.is_empty() || cloud.counts.len() != ranges.len() {
-        return 0;
-    }
-    let mut order: Vec<(f32, u32)> = ranges
-        .iter()
-        .copied()
-        .zip(cloud.counts.iter().copied())
-        .collect();
-    order.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let total: u64 = order.iter().map(|&(_, c)| c as u64).sum();
-    let mut acc = 0u64;
-    let median = order
-        .iter()
-        .find(|&&(_, c)| {
-            acc += c as u64;
-            2 * acc >= total
-        })
-        .map_or(f32::INFINITY, |&(r, _)| r);
-    let limit = (factor * median as f64) as f32;
-    cloud.retain_points(|i| ranges[i] <= limit)
 }
 
 /// What to calibrate and how: the one entry point [`calibrate_request`] takes it; [`calibrate`] is the
@@ -596,7 +219,7 @@ pub fn calibrate_request(req: CalibrateRequest) -> Result<(Calibration, FusedCel
     let fuse = refine || initializer.needs_clouds();
     let fused = if fuse {
         if refine {
-            let (reference, other) = robot_pair(cell)?;
+            let (reference, other) = cell.robot_pair()?;
             progress(&format!(
                 "fusing {} frames of {} and {} of {}",
                 reference.frames.len(),
@@ -656,7 +279,7 @@ pub fn refine_cell(
 ) -> Result<Calibration> {
     let pair = match fused.robots.as_slice() {
         [a, b] => (a, b),
-        _ => robot_pair(cell)?,
+        _ => cell.robot_pair()?,
     };
     let truth = cell.ground_truth()?.and_then(|g| g.t_base1_base2);
     refine_pair(pair, fused, initializer, cfg, refine, truth, progress)

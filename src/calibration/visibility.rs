@@ -221,6 +221,17 @@ pub fn self_consistent_margin(
     }
 }
 
+/// The free-space test of the final transform.
+#[derive(Clone, Debug, Serialize)]
+pub struct FreeSpaceCheck {
+    /// Mean of both ways' violation fractions at the final transform, 0–1.
+    pub violation: f64,
+    /// The worse of the two robots' own clouds against their own frames at the same margin, 0–1.
+    pub own_violation: f64,
+    /// The margin, metres.
+    pub margin_m: f64,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -986,6 +986,24 @@ impl Cell {
             .collect()
     }
 
+    /// The two robots of a two-robot calibration: the reference and the first other one. Errors: a cell
+    /// of one robot.
+    pub fn robot_pair(&self) -> Result<(&CellRobot, &CellRobot)> {
+        let reference = self.reference();
+        let other = self
+            .robots
+            .iter()
+            .find(|r| r.name != reference.name)
+            .ok_or_else(|| {
+                Error::InvalidInput(format!(
+                    "{}: the cell needs two robots, it names only {:?}",
+                    self.dir.join(MANIFEST_FILE).display(),
+                    reference.name
+                ))
+            })?;
+        Ok((reference, other))
+    }
+
     /// The reference robot.
     pub fn reference(&self) -> &CellRobot {
         self.robots

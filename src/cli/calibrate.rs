@@ -4,7 +4,7 @@ use super::methods::{CalibrateSettings, Method, MethodInputs};
 use super::output::{matrix4_text, spinner};
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
-use depthcal::calibration::robot_to_robot::{robot_pair, CalibrateConfig, Calibration, FusedCell};
+use depthcal::calibration::robot_to_robot::{CalibrateConfig, Calibration, FusedCell};
 use depthcal::cell::Cell;
 use depthcal::geometry::pose::{isometry_to_xyzquat, KukaPose};
 use depthcal::geometry::robot_formats::{
@@ -209,7 +209,7 @@ fn check_output_dir(a: &Args, cell: &Cell) -> Result<()> {
 
 /// The frame ids of the ROS outputs: the flags, else the robots' `frame` in cell.toml, else ROBOT_base.
 fn frames(a: &Args, cell: &Cell) -> Result<Frames> {
-    let (r, o) = robot_pair(cell)?;
+    let (r, o) = cell.robot_pair()?;
     let parent = a.frame_id.clone().unwrap_or_else(|| cell.frame_id(&r.name));
     let child = a
         .child_frame_id

@@ -1,10 +1,13 @@
 //! `depthcal plan CELL_DIR`: which degrees of freedom of the hand-eyes and of `T_base1_base2` the cell's
-//! frames leave weak, and which flange poses to capture next.
+//! frames leave weak, and which flange poses to capture next; on a cell of three or more robots, which base
+//! is weakest, what the pairs touching it lack, and the poses that would strengthen it.
 
 use super::methods::{CalibrateSettings, Method, MethodInputs};
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
+use depthcal::calibration::multi_robot::calibrate_robots;
 use depthcal::calibration::plan::{plan_cell, PlanConfig};
+use depthcal::calibration::plan_robots::{plan_robots, RobotsPlan};
 use depthcal::cell::Cell;
 use depthcal::methods::calibrate_with_method;
 use depthcal::report::PlanReport;
@@ -42,37 +45,95 @@ pub fn run(a: Args) -> Result<()> {
     pcfg.validate().with_context(|| {
         super::output::config_source(a.plan_config.as_deref(), "the plan configuration")
     })?;
+    let calibrating = || format!("calibrating {}", a.cell.display());
     let cell = Cell::open(&a.cell)?;
     cell.ground_truth()?;
     if !a.json {
-        eprintln!("calibrating {} (depth) ...", a.cell.display());
+        eprintln!(
+            "calibrating {} ({} robots, depth) ...",
+            a.cell.display(),
+            cell.robots.len()
+        );
     }
-    let (c, fused) = calibrate_with_method(
-        &cell,
-        Method::Depth,
-        &MethodInputs::default(),
-        &cfg,
-        true,
-        &mut |_| {},
-    )
-    .with_context(|| format!("calibrating {}", a.cell.display()))?;
-    if !a.json {
-        eprintln!("planning ...");
-    }
-    let plan = plan_cell(&cell, &c, &fused, &pcfg)
-        .with_context(|| format!("planning {}", a.cell.display()))?;
-    let report = PlanReport::new(
-        &c,
-        plan,
-        &a.cell.display().to_string(),
-        start.elapsed().as_secs_f64() * 1e3,
-    );
+    let planning = || {
+        if !a.json {
+            eprintln!("planning ...");
+        }
+    };
+    let cell_name = a.cell.display().to_string();
+    let planning_err = || format!("planning {}", a.cell.display());
+    let ms = || start.elapsed().as_secs_f64() * 1e3;
+    let (report, trust) = if cell.robots.len() > 2 {
+        // Every pair and the pose graph; the weakest base and the pair that strengthens it.
+        let init =
+            depthcal::methods::build(Method::Depth, &cell, &MethodInputs::default(), &cfg)?.0;
+        let (c, fused) =
+            calibrate_robots(&cell, init.as_ref(), &cfg, &mut |_| {}).with_context(calibrating)?;
+        planning();
+        let plan = plan_robots(&c, &fused, &pcfg).with_context(planning_err)?;
+        (PlanReport::with_robots(&c, plan, &cell_name, ms()), c.trust)
+    } else {
+        let (c, fused) = calibrate_with_method(
+            &cell,
+            Method::Depth,
+            &MethodInputs::default(),
+            &cfg,
+            true,
+            &mut |_| {},
+        )
+        .with_context(calibrating)?;
+        planning();
+        let plan = plan_cell(&cell, &c, &fused, &pcfg).with_context(planning_err)?;
+        (PlanReport::new(&c, plan, &cell_name, ms()), c.trust)
+    };
     if a.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         print_text(&report);
     }
-    super::gate(&c.trust)
+    super::gate(&trust)
+}
+
+/// The part of a plan of three or more robots: every base's strength, the weakest, the pairs touching it
+/// and the pair whose poses follow.
+fn print_robots(p: &RobotsPlan) {
+    println!(
+        "bases of {} robots (largest 1-sigma, rotations at the reference cloud's {:.2} m RMS radius):",
+        p.bases.len() + 1,
+        p.radius_m
+    );
+    for b in &p.bases {
+        println!(
+            "  {:<12} {}",
+            b.robot,
+            match b.sigma_mm {
+                Some(s) => format!(
+                    "{s:.3} mm from {} pair(s){}",
+                    b.pairs_used,
+                    if b.trusted { "" } else { " (NOT trusted)" }
+                ),
+                None => "NOT calibrated".to_string(),
+            }
+        );
+    }
+    println!("weakest base: {}", p.weakest);
+    for q in &p.pairs {
+        println!(
+            "  pair {:<20} {:<11} overlap {}: {}",
+            q.pair,
+            q.verdict.name(),
+            q.overlap.map_or("-".to_string(), |o| format!("{o:.2}")),
+            q.advice
+        );
+    }
+    println!(
+        "poses for the pair {} - {} (the pair touching {} with the most overlap): its largest 1-sigma is {:.3} mm from its inputs (hand-eyes, poses: more views do not lower it) and {:.3} mm from the registration",
+        p.planned_pair[0],
+        p.planned_pair[1],
+        p.weakest,
+        p.pair_inputs_sigma_mm,
+        p.pair_registration_sigma_mm
+    );
 }
 
 fn kuka(k: &[f64; 6]) -> String {
@@ -83,6 +144,9 @@ fn kuka(k: &[f64; 6]) -> String {
 }
 
 fn print_text(r: &PlanReport) {
+    if let Some(p) = &r.robots {
+        print_robots(p);
+    }
     println!(
         "plan for {} (reference {}, other {}); the calibration it rests on is {}",
         r.cell,

@@ -178,7 +178,7 @@ mod images {
         cell: &Cell,
         _cfg: &FeatureMethodConfig,
     ) -> Result<(FeatureInitializer, Vec<String>)> {
-        let (reference, _) = crate::calibration::robot_to_robot::robot_pair(cell)?;
+        let (reference, _) = cell.robot_pair()?;
         Err(Error::InvalidInput(format!(
             "robot {:?}: keypoints in its colour images need depthcal built with the `vision` feature \
              (OpenCV): `cargo build --release --features vision`",

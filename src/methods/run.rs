@@ -5,8 +5,8 @@ use super::{available, build, Method, MethodInputs};
 use crate::calibration::handeye::depth::joint::{refine_jointly, JointHandEyeResult};
 use crate::calibration::handeye::depth::{refine_hand_eye_from_depth, HandEyeDepthResult};
 use crate::calibration::robot_to_robot::{
-    calibrate_request, fuse_cell, refine_cell, robot_pair, CalibrateConfig, CalibrateRequest,
-    Calibration, FusedCell,
+    calibrate_request, fuse_cell, refine_cell, CalibrateConfig, CalibrateRequest, Calibration,
+    FusedCell,
 };
 use crate::cell::Cell;
 use crate::error::Result;
@@ -255,7 +255,7 @@ pub fn calibrate_refining_hand_eyes(
     let mut adopted = false;
     if cfg.refine_hand_eye.joint {
         progress("refining both hand-eyes and the base-to-base transform together");
-        let (r, o) = robot_pair(&refined_cell)?;
+        let (r, o) = refined_cell.robot_pair()?;
         let j = refine_jointly([r, o], &c.transform, &cfg.refine_hand_eye)?;
         if cfg.refine_hand_eye.adopt_joint_base && j.trusted {
             let truth = cell.ground_truth()?.and_then(|g| g.t_base1_base2);

@@ -22,6 +22,7 @@ pub mod plan;
 pub mod pose;
 pub mod registration;
 pub mod robots;
+pub mod routes;
 pub mod simulation;
 
 pub use calibration::{CalibrationReport, CALIBRATION_SCHEMA};
@@ -40,4 +41,5 @@ pub use matching::{MatchReport, MATCH_SCHEMA};
 pub use plan::{PlanReport, PLAN_SCHEMA};
 pub use pose::{ErrorReport, PoseReport, SigmaReport, Timings};
 pub use registration::{RegistrationInputs, RegistrationReport, REGISTRATION_SCHEMA};
+pub use routes::{RoutesReport, ROUTES_SCHEMA};
 pub use simulation::{SimulationReport, SIMULATION_SCHEMA};

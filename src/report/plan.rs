@@ -1,6 +1,8 @@
 //! The report of `depthcal plan` (`--json`).
 
+use crate::calibration::multi_robot::CellCalibration;
 use crate::calibration::plan::CellPlan;
+use crate::calibration::plan_robots::RobotsPlan;
 use crate::calibration::robot_to_robot::Calibration;
 use serde::Serialize;
 
@@ -25,6 +27,10 @@ pub struct PlanReport {
     /// The plan.
     #[serde(flatten)]
     pub plan: CellPlan,
+    /// A cell of three or more robots: every base's strength, the weakest, the pairs touching it; the plan
+    /// above is then the planned pair's (`reference`, `other`). Absent for two robots.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub robots: Option<RobotsPlan>,
     /// Wall time of the whole run, milliseconds.
     pub total_ms: f64,
 }
@@ -40,6 +46,23 @@ impl PlanReport {
             calibration_trusted: c.trust.trusted,
             calibration_reasons: c.trust.reasons.clone(),
             plan,
+            robots: None,
+            total_ms,
+        }
+    }
+
+    /// The report of the plan `p` of a cell of three or more robots calibrated as `c`: the pair plan of
+    /// `p.planned_pair`, the cell's verdict.
+    pub fn with_robots(c: &CellCalibration, p: RobotsPlan, cell: &str, total_ms: f64) -> Self {
+        PlanReport {
+            schema: PLAN_SCHEMA,
+            cell: cell.to_string(),
+            reference: p.planned_pair[0].clone(),
+            other: p.planned_pair[1].clone(),
+            calibration_trusted: c.trust.trusted,
+            calibration_reasons: c.trust.reasons.clone(),
+            plan: p.plan.clone(),
+            robots: Some(p),
             total_ms,
         }
     }

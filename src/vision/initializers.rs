@@ -9,7 +9,6 @@ use crate::calibration::feature_init::{FeatureInitializer, FeatureMethodConfig};
 use crate::calibration::marker_init::{
     marker_initializer_with, MarkerInitializer, MarkerMethodConfig,
 };
-use crate::calibration::robot_to_robot::robot_pair;
 use crate::cell::{Board, Cell, CellRobot};
 use crate::error::Result;
 use crate::vision::observe::{board_in_robot_base, ObserveConfig};
@@ -62,6 +61,6 @@ pub fn feature_initializer(
     cell: &Cell,
     cfg: &FeatureMethodConfig,
 ) -> Result<(FeatureInitializer, Vec<String>)> {
-    let (reference, other) = robot_pair(cell)?;
+    let (reference, other) = cell.robot_pair()?;
     crate::vision::feature_lift::feature_correspondences(reference, other, cfg)
 }

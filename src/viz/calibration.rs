@@ -11,7 +11,7 @@ use super::sections::{
 };
 use super::{finish, Placement, Report, TwoClouds};
 use crate::calibration::consistency::RobotConsistency;
-use crate::calibration::robot_to_robot::{robot_pair, Calibration, FusedCell};
+use crate::calibration::robot_to_robot::{Calibration, FusedCell};
 use crate::cell::{Cell, CellRobot};
 use crate::error::Result;
 use crate::geometry::robot_formats::Frames;
@@ -253,7 +253,7 @@ pub fn calibration_report(
     fused: &FusedCell,
     frames: &Frames,
 ) -> Result<Report> {
-    let (rr, or) = robot_pair(cell)?;
+    let (rr, or) = cell.robot_pair()?;
     let other_at = |what: &str| format!("{} cloud, {what}", c.other);
     let mut placements = Vec::new();
     if c.refined {

@@ -9,7 +9,7 @@ use super::sections::{
     consistency_section, convergence_section, matrix_table, pose_formats, residual_section,
 };
 use super::{finish, Placement, PlacementResidual, Report, TwoClouds};
-use crate::calibration::robot_to_robot::{robot_pair, Calibration, FusedCell};
+use crate::calibration::robot_to_robot::{Calibration, FusedCell};
 use crate::cell::Cell;
 use crate::error::Result;
 use crate::geometry::transform::pose_error;
@@ -35,7 +35,7 @@ fn err_text(e: Option<(f64, f64)>) -> String {
 
 /// The report of a comparison of `runs` on the fused clouds `fused`.
 pub fn comparison_report(cell: &Cell, fused: &FusedCell, runs: &[MethodRun]) -> Result<Report> {
-    let (rr, or) = robot_pair(cell)?;
+    let (rr, or) = cell.robot_pair()?;
     let ok: Vec<(&str, &Calibration)> = runs
         .iter()
         .filter_map(|r| r.outcome.ok().map(|c| (r.method, c)))

@@ -207,9 +207,9 @@ pub fn robots_report(
             .map(|f| extent(&f.cloud.points))
             .fold(0.0, f64::max),
     );
-    for k in 0..n {
+    for (k, robot) in fused.robots.iter().enumerate() {
         let cons = consistency.iter().find(|r| r.robot == names[k]);
-        let lines = base_and_cameras(&fused.robots[k], cons, len, colour(k));
+        let lines = base_and_cameras(robot, cons, len, colour(k));
         if let Some(t) = joint(k) {
             sc.items.push(lines_item(
                 format!("{} base and cameras", names[k]),

@@ -412,14 +412,13 @@ pub fn graph_top_view(title: &str, nodes: &[GraphNode], edges: &[GraphEdgeMark])
     for (n, p) in nodes.iter().zip(&pos) {
         let _ = write!(
             out,
-            r#"<circle cx="{:.1}" cy="{:.1}" r="7" fill="{c}" stroke="{dark}"/><text x="{:.1}" y="{:.1}" class="axis">{}</text>"#,
+            r#"<circle cx="{:.1}" cy="{:.1}" r="7" fill="{c}" stroke="black"/><text x="{:.1}" y="{:.1}" class="axis">{}</text>"#,
             p.0,
             p.1,
             p.0 + 10.0,
             p.1 + 4.0,
             esc(&n.name),
             c = esc(&n.colour),
-            dark = "#333"
         );
     }
     out.push_str("</svg>");
