@@ -146,7 +146,13 @@ pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
         "ascii" => read_ascii(&header, bytes, frgb, &err)?,
         "binary" | "binary_compressed" => {
             let data = binary_records(&header, bytes, &err)?;
-            read_binary(&header, &data, frgb)
+            return Ok(cloud_from_records(
+                &header,
+                &data,
+                [fx, fy, fz],
+                fnorm,
+                frgb,
+            ));
         }
         other => {
             return Err(err(format!(
@@ -473,29 +479,56 @@ fn binary_records<'a>(
     Ok(Cow::Owned(aos))
 }
 
-/// The values of point-major binary records.
-fn read_binary(h: &Header, data: &[u8], frgb: Option<usize>) -> Table {
-    let (n, nf, record) = (h.n, h.fields.len(), h.record);
-    // n * record <= data length and record >= nf, so this fits.
-    let mut table = Table {
-        values: vec![0f64; n * nf],
-        rgb_bits: if frgb.is_some() {
-            vec![0u32; n]
-        } else {
-            Vec::new()
-        },
+/// The cloud of binary records (`DATA binary`, or `binary_compressed` once decompressed and interleaved):
+/// only the fields it keeps are read, straight from each record (fields `xyz`, `normals` and `rgb` by index;
+/// a field of COUNT k gives its first value). 6 MB of binary PCD with normals reads in about 3 ms where a
+/// table of every field as `f64` took 20.7 ms (`cargo bench --bench io`: 2.8 ms).
+fn cloud_from_records(
+    h: &Header,
+    data: &[u8],
+    xyz: [usize; 3],
+    normals: [Option<usize>; 3],
+    rgb: Option<usize>,
+) -> PointCloud {
+    // n * record <= data length (checked by `binary_records`) and record >= 1.
+    let records = data.chunks_exact(h.record.max(1)).take(h.n);
+    let at = |r: &[u8], j: usize| {
+        let f = &h.fields[j];
+        f.read(&r[f.offset..]) as f32
     };
-    for i in 0..n {
-        let rec = &data[i * record..(i + 1) * record];
-        for (j, f) in h.fields.iter().enumerate() {
-            let b = &rec[f.offset..];
-            table.values[i * nf + j] = f.read(b);
-            if Some(j) == frgb {
-                table.rgb_bits[i] = u32::from_le_bytes(b[..4].try_into().unwrap());
-            }
+    // Three fields of each record: float fields (the common case) read at fixed offsets, others through
+    // the per-value type dispatch.
+    let three = |j: [usize; 3]| -> Vec<[f32; 3]> {
+        if j.iter()
+            .all(|&j| (h.fields[j].kind, h.fields[j].size) == (b'F', 4))
+        {
+            let o = j.map(|j| h.fields[j].offset);
+            let f = |r: &[u8], o: usize| f32::from_le_bytes(r[o..o + 4].try_into().unwrap());
+            records
+                .clone()
+                .map(|r| [f(r, o[0]), f(r, o[1]), f(r, o[2])])
+                .collect()
+        } else {
+            records
+                .clone()
+                .map(|r| [at(r, j[0]), at(r, j[1]), at(r, j[2])])
+                .collect()
         }
+    };
+    let normals = match normals {
+        [Some(a), Some(b), Some(c)] => Some(three([a, b, c])),
+        _ => None,
+    };
+    PointCloud {
+        points: three(xyz),
+        normals,
+        colors: rgb.map(|j| {
+            let o = h.fields[j].offset;
+            records
+                .map(|r| rgb_from_bits(u32::from_le_bytes(r[o..o + 4].try_into().unwrap())))
+                .collect()
+        }),
     }
-    table
 }
 
 #[cfg(test)]
@@ -528,5 +561,116 @@ mod tests {
         bin.truncate(bin.len() - 3);
         let e = read(Path::new("b.pcd"), &bin).unwrap_err().to_string();
         assert!(e.contains("b.pcd") && e.contains("truncated"), "{e}");
+    }
+
+    /// Random layouts (field types, sizes, counts and order, extra fields, packed rgb) written as binary
+    /// and as ASCII read to the same cloud, bit for bit: the binary records are read field by field, the
+    /// ASCII through the table.
+    #[test]
+    fn binary_records_read_as_their_ascii_text_on_random_layouts() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let kinds: [(u8, usize); 10] = [
+            (b'F', 4),
+            (b'F', 4),
+            (b'F', 8),
+            (b'I', 1),
+            (b'I', 2),
+            (b'I', 4),
+            (b'U', 1),
+            (b'U', 2),
+            (b'U', 4),
+            (b'U', 8),
+        ];
+        for case in 0..200 {
+            let mut names: Vec<&str> = vec!["x", "y", "z"];
+            for extra in [
+                "normal_x",
+                "normal_y",
+                "normal_z",
+                "intensity",
+                "rgb",
+                "label",
+            ] {
+                if next() % 3 == 0 {
+                    names.push(extra);
+                }
+            }
+            let k = (next() % names.len() as u64) as usize;
+            let last = names.len() - 1;
+            names.swap(k, last);
+            let fields: Vec<(&str, u8, usize, usize)> = names
+                .iter()
+                .map(|&n| {
+                    let (t, z) = if n == "rgb" {
+                        (b'U', 4)
+                    } else {
+                        kinds[(next() % kinds.len() as u64) as usize]
+                    };
+                    (n, t, z, if n == "label" { 2 } else { 1 })
+                })
+                .collect();
+            let n = (next() % 30) as usize;
+            let head = |data: &str| {
+                format!(
+                    "FIELDS {}\nSIZE {}\nTYPE {}\nCOUNT {}\nWIDTH {n}\nHEIGHT 1\nPOINTS {n}\nDATA {data}\n",
+                    fields.iter().map(|f| f.0).collect::<Vec<_>>().join(" "),
+                    fields.iter().map(|f| f.2.to_string()).collect::<Vec<_>>().join(" "),
+                    fields.iter().map(|f| (f.1 as char).to_string()).collect::<Vec<_>>().join(" "),
+                    fields.iter().map(|f| f.3.to_string()).collect::<Vec<_>>().join(" "),
+                )
+            };
+            let (mut bin, mut text) = (head("binary").into_bytes(), head("ascii"));
+            for _ in 0..n {
+                let mut line = Vec::new();
+                for &(_, t, z, count) in &fields {
+                    for _ in 0..count {
+                        let r = next();
+                        match (t, z) {
+                            (b'F', 4) => {
+                                let v = (r % 20_000) as f32 / 64.0 - 150.0;
+                                bin.extend(v.to_le_bytes());
+                                line.push(format!("{v:?}"));
+                            }
+                            (b'F', _) => {
+                                let v = (r % 20_000) as f64 / 128.0 - 70.0;
+                                bin.extend(v.to_le_bytes());
+                                line.push(format!("{v:?}"));
+                            }
+                            (b'I', _) => {
+                                let v = (r % 200) as i64 - 100;
+                                bin.extend(&v.to_le_bytes()[..z]);
+                                line.push(v.to_string());
+                            }
+                            _ => {
+                                let v = r % if z == 1 { 256 } else { 65_536 };
+                                bin.extend(&v.to_le_bytes()[..z]);
+                                line.push(v.to_string());
+                            }
+                        }
+                    }
+                }
+                text.push_str(&line.join(" "));
+                text.push('\n');
+            }
+            let b = read(Path::new("b.pcd"), &bin).unwrap_or_else(|e| panic!("case {case}: {e}"));
+            let a = read(Path::new("a.pcd"), text.as_bytes())
+                .unwrap_or_else(|e| panic!("case {case}: {e}"));
+            let bits =
+                |p: &[[f32; 3]]| -> Vec<u32> { p.iter().flatten().map(|v| v.to_bits()).collect() };
+            assert_eq!(bits(&b.points), bits(&a.points), "case {case}");
+            assert_eq!(
+                b.normals.as_deref().map(bits),
+                a.normals.as_deref().map(bits),
+                "case {case}"
+            );
+            assert_eq!(b.colors, a.colors, "case {case}");
+            assert_eq!(b.len(), n);
+        }
     }
 }
