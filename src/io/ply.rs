@@ -141,8 +141,9 @@ fn colour_names() -> [&'static [&'static str]; 3] {
     ]
 }
 
-fn cloud_from(def: &ElementDef, elems: &[Vertex]) -> PointCloud {
-    let has_normals = has_all(
+/// Whether the vertex element has all three normal components, and all three colour channels.
+fn attributes(def: &ElementDef) -> (bool, bool) {
+    let normals = has_all(
         def,
         &[
             &["nx", "normal_x"],
@@ -150,7 +151,11 @@ fn cloud_from(def: &ElementDef, elems: &[Vertex]) -> PointCloud {
             &["nz", "normal_z"],
         ],
     );
-    let has_colors = has_all(def, &colour_names());
+    (normals, has_all(def, &colour_names()))
+}
+
+fn cloud_from(def: &ElementDef, elems: &[Vertex]) -> PointCloud {
+    let (has_normals, has_colors) = attributes(def);
     PointCloud {
         points: elems.iter().map(|v| v.p).collect(),
         normals: has_normals.then(|| elems.iter().map(|v| v.n).collect()),
@@ -379,15 +384,7 @@ fn read_binary_scalars(
                 Some((here, t.clone(), Slot::of(&p.name, t)))
             })
             .collect();
-        let has_normals = has_all(
-            def,
-            &[
-                &["nx", "normal_x"],
-                &["ny", "normal_y"],
-                &["nz", "normal_z"],
-            ],
-        );
-        let has_colors = has_all(def, &colour_names());
+        let (has_normals, has_colors) = attributes(def);
         let n = def.count;
         let mut points = Vec::with_capacity(n);
         let mut normals = Vec::with_capacity(if has_normals { n } else { 0 });
