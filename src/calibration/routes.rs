@@ -156,6 +156,19 @@ mod tests {
         )
     }
 
+    /// Robot `name` at `t` in the joint solution, trusted.
+    fn base(name: &str, t: Isometry3<f64>) -> RobotBase {
+        RobotBase {
+            name: name.into(),
+            transform: Some(t),
+            covariance: Some(Matrix6::identity() * 1e-8),
+            trust: Trust::new(),
+            error_vs_truth: None,
+            normalised_error: None,
+            pairs_used: vec![],
+        }
+    }
+
     fn pair(a: &str, b: &str, t: Isometry3<f64>, sigma: f64, trusted: bool) -> PairCalibration {
         let mut c = Calibration::empty_for_tests(a, b);
         c.transform = t;
@@ -183,23 +196,11 @@ mod tests {
         let (tb, tc) = (iso([1.0, 0.0, 0.0], 90.0), iso([0.0, 2.0, 0.0], 180.0));
         let cell = CellCalibration {
             reference: "a".into(),
-            robots: ["b", "c"]
-                .into_iter()
-                .zip([tb, tc])
-                .map(|(n, t)| RobotBase {
-                    name: n.into(),
-                    transform: Some(t),
-                    covariance: Some(Matrix6::identity() * 1e-8),
-                    trust: Trust::new(),
-                    error_vs_truth: None,
-                    normalised_error: None,
-                    pairs_used: vec![],
-                })
-                .collect(),
+            robots: vec![base("b", tb), base("c", tc)],
             pairs: vec![
                 pair("a", "b", tb, 1e-3, true),
                 pair("a", "c", tc, 1e-3, false),
-                // Stored c -> b: read backwards for the chain a - c - b and forwards... for a - b - c.
+                // Stored as c -> b: the chain a - b - c reads it backwards.
                 pair("c", "b", tc.inverse() * tb, 2e-3, true),
             ],
             trust: Trust::new(),
@@ -235,15 +236,6 @@ mod tests {
         let tb = iso([1.0, 0.0, 0.0], 90.0);
         let tc = iso([0.0, 2.0, 0.0], 180.0);
         let off = iso([0.0, 0.01, 0.0], 0.0) * tc;
-        let base = |n: &str, t| RobotBase {
-            name: n.into(),
-            transform: Some(t),
-            covariance: Some(Matrix6::identity() * 1e-8),
-            trust: Trust::new(),
-            error_vs_truth: None,
-            normalised_error: None,
-            pairs_used: vec![],
-        };
         let cell = CellCalibration {
             reference: "a".into(),
             robots: vec![base("b", tb), base("c", tc)],

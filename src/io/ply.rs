@@ -263,18 +263,26 @@ fn read_with(path: &Path, bytes: &[u8], direct: bool) -> Result<PointCloud> {
     }
     let cloud = cloud.ok_or_else(|| Error::format(path, "the PLY file has no `vertex` element"))?;
     let consumed = reader.get_ref().position() as usize;
-    if is_last && consumed < bytes.len() {
+    if is_last {
+        no_trailing_data(path, bytes, consumed, cloud.len())?;
+    }
+    Ok(cloud)
+}
+
+/// The binary payload ends with the last of the header's `vertices` (at `consumed`) when `vertex` is the
+/// last element: data after it means the header's count is wrong.
+fn no_trailing_data(path: &Path, bytes: &[u8], consumed: usize, vertices: usize) -> Result<()> {
+    if consumed < bytes.len() {
         return Err(Error::format(
             path,
             format!(
-                "{} bytes of data follow the last of the header's {} vertices: the header's vertex count does not \
-                 match the data",
-                bytes.len() - consumed,
-                cloud.len()
+                "{} bytes of data follow the last of the header's {vertices} vertices: the header's vertex count \
+                 does not match the data",
+                bytes.len() - consumed
             ),
         ));
     }
-    Ok(cloud)
+    Ok(())
 }
 
 /// Where one scalar vertex property goes: the same meaning as [`Vertex::set_f`] (float and double
@@ -450,17 +458,8 @@ fn read_binary_scalars(
                 colors.push(v.c);
             }
         }
-        let consumed = at + len;
-        if vertex_is_last && consumed < bytes.len() {
-            return Err(Error::format(
-                path,
-                format!(
-                    "{} bytes of data follow the last of the header's {} vertices: the header's vertex count does not \
-                     match the data",
-                    bytes.len() - consumed,
-                    n
-                ),
-            ));
+        if vertex_is_last {
+            no_trailing_data(path, bytes, at + len, n)?;
         }
         return Ok(Some(PointCloud {
             points,
