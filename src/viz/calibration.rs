@@ -117,10 +117,15 @@ pub(super) fn extent(points: &[[f32; 3]]) -> f64 {
 /// The distance beyond which a point of the other cloud has no counterpart: the finest ICP level's
 /// correspondence distance, else three voxels of the reference's fusion (metres).
 pub(super) fn reach(c: &Calibration, fused: &FusedCell) -> f64 {
+    reach_with_voxel(c, fused.reference.stats.voxel_size_m)
+}
+
+/// [`reach`] given the reference's fusion voxel (metres).
+pub(super) fn reach_with_voxel(c: &Calibration, voxel_m: f64) -> f64 {
     c.icp_levels
         .last()
         .map(|l| l.max_correspondence_distance)
-        .unwrap_or(3.0 * fused.reference.stats.voxel_size_m)
+        .unwrap_or(3.0 * voxel_m)
         .max(1e-6)
 }
 

@@ -4,7 +4,7 @@
 //! graph seen from above with every pair's verdict and residual; each robot's pose and 1-σ; each pair's
 //! own result; the per-frame consistency and hand-eye checks; warnings and timings.
 
-use super::calibration::{base_and_cameras, extent, triad_length};
+use super::calibration::{base_and_cameras, extent, reach_with_voxel, triad_length};
 use super::page::{banner, details, esc, grid, list, num, section, viewer};
 use super::residual::{nice_ceiling, point_to_plane, Histogram, ResidualStats};
 use super::scene::{Item, PointSet, Residuals, Scene, Shape, MAX_POINTS, PALETTE};
@@ -133,12 +133,7 @@ pub fn robots_report(
     let mut reaches = Vec::new();
     for k in 1..n {
         let pair = &c.pairs[k - 1].calibration;
-        let reach = pair
-            .icp_levels
-            .last()
-            .map(|l| l.max_correspondence_distance)
-            .unwrap_or(3.0 * fused.clouds[0].stats.voxel_size_m)
-            .max(1e-6);
+        let reach = reach_with_voxel(pair, fused.clouds[0].stats.voxel_size_m);
         reaches.push(reach);
         if let Some(t) = joint(k) {
             let residual = (!finite.is_empty() && !sc.sets[sets[k]].points.is_empty()).then(|| {
