@@ -727,7 +727,7 @@ fn clean(source: &PointCloud, target: &PointCloud, cfg: &RegisterConfig) -> Resu
         let dropped = c.drop_non_finite();
         if dropped > 0 {
             let msg = format!("{dropped} {what} points with NaN/infinite coordinates were dropped");
-            log::warn!("{msg}");
+            log::debug!("{msg}");
             warnings.push(msg);
         }
     }
@@ -1355,7 +1355,10 @@ fn quality(
     let (centre, length) = centre_and_radius(&moved);
     let deg = p.coarse_degeneracy.clone();
     if let Some(msg) = degeneracy_warning(&deg) {
-        log::warn!("{msg}");
+        // Carried in the result, which the front ends print; only a debug log here, since calibrate's
+        // internal registrations (one frame against a cloud) would otherwise print claims about
+        // sub-problems beside a result that has no such weakness.
+        log::debug!("{msg}");
         warnings.push(msg);
     }
     if !p.converged {
