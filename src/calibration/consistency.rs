@@ -319,7 +319,7 @@ fn median_f32(v: &mut [f32]) -> f64 {
 
 use crate::stats::{quantile_in_place_f32 as quantile_f32, upper_median as median_f64};
 
-fn splitmix(mut z: u64) -> u64 {
+pub(crate) fn splitmix(mut z: u64) -> u64 {
     z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);

@@ -194,7 +194,7 @@ pub fn fuse_robots(robots: &[&CellRobot], cfg: &CalibrateConfig) -> Result<Fused
     let t1 = Instant::now();
     let hand_eye_checks = if cfg.hand_eye_check.enabled {
         // On the cell's own poses: the moved frames could hide a hand-eye that is off. Where the poses
-        // scatter, the test allows for what the scatter alone makes the depth ask for.
+        // scatter, the test allows for what pose errors of the scatter's size make its fit ask for.
         (0..robots.len())
             .into_par_iter()
             .map(|k| {
@@ -202,7 +202,13 @@ pub fn fuse_robots(robots: &[&CellRobot], cfg: &CalibrateConfig) -> Result<Fused
                 let views = (!c.views.is_empty()).then_some(c.views.as_slice());
                 let scatter = pose_scatter
                     .get(k)
-                    .and_then(|s: &PoseScatter| s.hand_eye_covariance.as_ref());
+                    .filter(|s: &&PoseScatter| s.widened)
+                    .map(|s| {
+                        (
+                            s.beyond_hand_eye_deg.to_radians(),
+                            s.beyond_hand_eye_mm * 1e-3,
+                        )
+                    });
                 check_hand_eye_under_scatter(robots[k], views, &cfg.hand_eye_check, scatter)
             })
             .collect::<Result<Vec<_>>>()?

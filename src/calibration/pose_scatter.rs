@@ -78,6 +78,13 @@ pub struct PoseScatterConfig {
     pub outlier_factor: f64,
     /// ... and this, millimetres, is left as it is (default 4 and 3 mm).
     pub outlier_floor_mm: f64,
+    /// The sampled blocks are spread over the directions of their normals, in this many bins per axis
+    /// of the normal (default 2: the eight octants; 0 samples uniformly, as the consistency check does).
+    /// Uniformly, most samples of a frame lie on table and floor, and the corrections of the directions
+    /// only the objects' sides pin (yaw, horizontal shifts) stay noisy: on the pose-noise cells of the
+    /// trust sweep the octants brought `T_base1_base2` to what a perfect correction would leave
+    /// (docs/accuracy.md, "Pose scatter").
+    pub normal_bins: u32,
 }
 
 impl Default for PoseScatterConfig {
@@ -96,6 +103,7 @@ impl Default for PoseScatterConfig {
             apply_above_mm: 0.5,
             outlier_factor: 4.0,
             outlier_floor_mm: 3.0,
+            normal_bins: 2,
         }
     }
 }
@@ -147,15 +155,19 @@ pub struct PoseScatter {
     pub widened: bool,
     /// Frames whose correction stands out of the others' scatter (left as they are), by frame id.
     pub outliers: Vec<String>,
+    /// The scatter a change of the hand-eye does not explain, RMS per axis at the scene: translation,
+    /// millimetres ...
+    #[serde(skip)]
+    pub beyond_hand_eye_mm: f64,
+    /// ... and rotation, degrees. A hand-eye change `δ` asks each frame for the correction
+    /// `Ad(T_base_cam_i) δ` less the mean (the gauge); the corrections less the best-fitting such pattern
+    /// are the poses' own scatter. The hand-eye check allows for this one, so that a hand-eye that is off,
+    /// which the corrections also absorb, does not widen its own allowance.
+    #[serde(skip)]
+    pub beyond_hand_eye_deg: f64,
     /// Each frame's correction, a left increment in the base frame (identity where not applied).
     #[serde(skip)]
     pub corrections: Vec<Isometry3<f64>>,
-    /// Where applied: the covariance of the hand-eye change (`[ω, v]` of `T_ee_cam⁻¹ · T_ee_cam'`, camera
-    /// frame) that the scatter alone makes the frames ask for: frames scattered independently by the
-    /// scatter's 1-σ, seen through the hand-eye model `C_i ≈ exp(Ad(T_base_cam_i) δ)` less the mean (the
-    /// gauge). What the hand-eye check adds to its test.
-    #[serde(skip)]
-    pub hand_eye_covariance: Option<Matrix6<f64>>,
 }
 
 impl PoseScatter {
@@ -170,8 +182,9 @@ impl PoseScatter {
             applied: false,
             widened: false,
             outliers: Vec::new(),
+            beyond_hand_eye_mm: 0.0,
+            beyond_hand_eye_deg: 0.0,
             corrections: vec![Isometry3::identity(); robot.frames.len()],
-            hand_eye_covariance: None,
         }
     }
 
@@ -354,7 +367,13 @@ pub fn estimate_pose_scatter(
         ..ConsistencyConfig::default()
     };
     let cams0: Vec<Isometry3<f64>> = views.iter().map(|v| v.t_cam_base.inverse()).collect();
-    let problem = Problem::new(cams0.clone(), views, &robot.intrinsics, &ccfg);
+    let problem = Problem::with_sampling(
+        cams0.clone(),
+        views,
+        &robot.intrinsics,
+        &ccfg,
+        cfg.normal_bins,
+    );
     let all: Vec<Vector3<f64>> = problem
         .points
         .iter()
@@ -519,9 +538,17 @@ pub fn estimate_pose_scatter(
         ));
     }
     let eps = &solved.eps;
-    let kept: Vec<usize> = (0..n).filter(|&i| !fixed[i]).collect();
     let displacement_mm = rms_displacement(eps, &fixed) * 1e3;
     let (scatter_mm, scatter_deg) = (st * 1e3, sr.to_degrees());
+    let kept: Vec<usize> = (0..n).filter(|&i| !fixed[i]).collect();
+    let (beyond_r, beyond_t) = scatter_beyond_hand_eye(
+        &solved,
+        &kept,
+        &cams0,
+        &centre,
+        (sr, st),
+        (floor_r, floor_t),
+    );
     log::debug!(
         "robot {}: pose scatter {scatter_mm:.3} mm / {scatter_deg:.4}° at the scene, corrections {displacement_mm:.3} mm RMS, {tests} tests, inflation {:.2}",
         robot.name,
@@ -537,26 +564,6 @@ pub fn estimate_pose_scatter(
             cfg.max_moved_mm, cfg.max_moved_deg
         )
     });
-    let hand_eye_covariance = if widened {
-        let ms: Vec<Matrix6<f64>> = kept
-            .iter()
-            .map(|&i| {
-                adjoint(&(Isometry3::translation(-centre.x, -centre.y, -centre.z) * cams0[i]))
-            })
-            .collect();
-        let mean = ms.iter().sum::<Matrix6<f64>>() / ms.len().max(1) as f64;
-        let (wr, wt) = (1.0 / (sr * sr), 1.0 / (st * st));
-        let w = Matrix6::from_diagonal(&Vector6::new(wr, wr, wr, wt, wt, wt));
-        let info: Matrix6<f64> = ms
-            .iter()
-            .map(|m| (m - mean).transpose() * w * (m - mean))
-            .sum();
-        // Directions no frame motion sees get no information: a tiny ridge keeps the inverse finite (they are
-        // the ones the hand-eye fit leaves weak too).
-        (info + Matrix6::identity() * (info.trace() * 1e-9)).try_inverse()
-    } else {
-        None
-    };
     let corrections = (0..n)
         .map(|i| {
             if applied && !fixed[i] {
@@ -579,9 +586,56 @@ pub fn estimate_pose_scatter(
             .filter(|&i| fixed[i])
             .map(|i| robot.frames[i].id.clone())
             .collect(),
+        beyond_hand_eye_mm: beyond_t * 1e3,
+        beyond_hand_eye_deg: beyond_r.to_degrees(),
         corrections,
-        hand_eye_covariance,
     })
+}
+
+/// The scatter of `s`'s corrections (frames `kept`, cameras `cams` in the base frame) that no change of the
+/// hand-eye explains: the hand-eye pattern `(Ad(T_base_cam_i) − mean) δ` (twists about `centre`) fitted to
+/// the corrections by least squares weighted with the scatter `(sr, st)`, and the rest's mean square less
+/// what the corrections' own noise explains, over the degrees of freedom left (3 per frame and component,
+/// less the 3 of `δ`), at least the floors. Returns (rotation in radians, translation in metres).
+fn scatter_beyond_hand_eye(
+    s: &Solved,
+    kept: &[usize],
+    cams: &[Isometry3<f64>],
+    centre: &Vector3<f64>,
+    (sr, st): (f64, f64),
+    (floor_r, floor_t): (f64, f64),
+) -> (f64, f64) {
+    let ms: Vec<Matrix6<f64>> = kept
+        .iter()
+        .map(|&i| adjoint(&(Isometry3::translation(-centre.x, -centre.y, -centre.z) * cams[i])))
+        .collect();
+    let mean = ms.iter().sum::<Matrix6<f64>>() / ms.len().max(1) as f64;
+    let (wr, wt) = (1.0 / (sr * sr), 1.0 / (st * st));
+    let w = Matrix6::from_diagonal(&Vector6::new(wr, wr, wr, wt, wt, wt));
+    let mut info = Matrix6::zeros();
+    let mut rhs = Vector6::zeros();
+    for (m, &i) in ms.iter().zip(kept) {
+        let a = m - mean;
+        info += a.transpose() * w * a;
+        rhs += a.transpose() * w * s.eps[i];
+    }
+    // Directions no frame motion sees carry nothing: a tiny ridge keeps the solve finite.
+    let delta = (info + Matrix6::identity() * (info.trace() * 1e-9))
+        .try_inverse()
+        .map_or_else(Vector6::zeros, |inv| inv * rhs);
+    let dof = (3 * kept.len()).saturating_sub(3).max(1) as f64;
+    let part = |k: usize, floor: f64| -> f64 {
+        let (mut sq, mut var) = (0.0, 0.0);
+        for (m, &i) in ms.iter().zip(kept) {
+            let e = s.eps[i] - (m - mean) * delta;
+            for d in k..k + 3 {
+                sq += e[d].powi(2);
+                var += s.var[i][d];
+            }
+        }
+        ((sq - var) / dof).max(floor * floor).sqrt()
+    };
+    (part(0, floor_r), part(3, floor_t))
 }
 
 #[cfg(test)]
@@ -700,6 +754,110 @@ mod tests {
         // The scatter found is the one put in, within a factor of two, and widens the pose 1-σ.
         assert!(s.scatter_mm > 0.75 && s.scatter_mm < 3.0, "{s:?}");
         assert!(moved.uncertainty.pose_translation_m >= s.scatter_mm * 1e-3 - 1e-12);
+    }
+
+    #[test]
+    fn the_sample_spreads_over_the_normals() {
+        use crate::calibration::consistency::SmoothDepth;
+        use crate::calibration::handeye::depth::residuals::{
+            frame_points, frame_points_by_normals,
+        };
+        let truth = cameras(3);
+        let (robot, views) = cell(&truth, &truth);
+        let cfg = ConsistencyConfig {
+            sample_points: 90,
+            block: 4,
+            ..ConsistencyConfig::default()
+        };
+        let depths: Vec<SmoothDepth> = views.iter().map(|v| SmoothDepth::new(v, &cfg)).collect();
+        // Samples per plane of the corner (floor, wall x = 1.2, wall y = 0.5), by the normal in the base.
+        let per_plane = |f: &FramePoints, cam: &Isometry3<f64>| -> [usize; 3] {
+            let mut c = [0; 3];
+            for n in &f.normals {
+                let n = cam.rotation * n;
+                c[n.iamax()] += 1;
+            }
+            c
+        };
+        let uniform = frame_points(&depths, &robot.intrinsics);
+        let spread = frame_points_by_normals(&depths, &robot.intrinsics, 90, 2);
+        assert_eq!(
+            spread.iter().map(|f| f.points.clone()).collect::<Vec<_>>(),
+            frame_points_by_normals(&depths, &robot.intrinsics, 90, 2)
+                .iter()
+                .map(|f| f.points.clone())
+                .collect::<Vec<_>>(),
+            "deterministic"
+        );
+        let mut rarest_before = usize::MAX;
+        let mut rarest_after = usize::MAX;
+        for (k, v) in views.iter().enumerate() {
+            let cam = v.t_cam_base.inverse();
+            assert_eq!(spread[k].points.len(), 90);
+            let (a, b) = (per_plane(&uniform[k], &cam), per_plane(&spread[k], &cam));
+            // Every plane the view sees keeps a share near a third (the octants split a plane's normals
+            // where they straddle an axis of the camera), and none is left out.
+            let seen: Vec<usize> = (0..3).filter(|&p| a[p] > 0).collect();
+            for &p in &seen {
+                assert!(b[p] >= 90 / (2 * seen.len()), "view {k}: {a:?} -> {b:?}");
+            }
+            rarest_before = rarest_before.min(seen.iter().map(|&p| a[p]).min().unwrap());
+            rarest_after = rarest_after.min(seen.iter().map(|&p| b[p]).min().unwrap());
+        }
+        assert!(
+            rarest_after > rarest_before,
+            "{rarest_before} -> {rarest_after}"
+        );
+    }
+
+    /// The hand-eye fit's sensitivity to each frame's pose against finite differences of its gradient
+    /// (exact depth: the residuals are about zero, so the gradient moves by `C_k ε` alone).
+    #[test]
+    fn pose_sensitivity_matches_finite_differences() {
+        use crate::calibration::handeye::depth::residuals::{total, Problem};
+        let truth = cameras(5);
+        let (robot, views) = cell(&truth, &truth);
+        let cfg = ConsistencyConfig {
+            sample_points: 150,
+            block: 4,
+            ..ConsistencyConfig::default()
+        };
+        let asn = Association {
+            gate_m: 0.02,
+            min_normal_cos: 45f64.to_radians().cos(),
+            kernel: RobustKernel::Huber,
+            kernel_sigmas: 2.0,
+        };
+        let x = Isometry3::identity();
+        let centre = Vector3::new(0.9, 0.3, 0.2);
+        let poses: Vec<Isometry3<f64>> = robot.frames.iter().map(|f| f.t_base_ee).collect();
+        let problem = Problem::new(poses.clone(), &views, &robot.intrinsics, &cfg);
+        let c = problem.pose_sensitivity(&x, &asn, &centre);
+        assert_eq!(c.len(), 5);
+        let scale = c.iter().map(|m| m.amax()).fold(0.0, f64::max);
+        assert!(scale > 0.0);
+        // An error all frames share moves no relative pose.
+        assert!(c.iter().sum::<Matrix6<f64>>().amax() < 1e-9 * scale);
+        let gradient = |k: usize, d: &Vector6<f64>| {
+            let mut p = poses.clone();
+            p[k] = about(&centre, d) * p[k];
+            let moved = Problem::new(p, &views, &robot.intrinsics, &cfg);
+            total(&moved.sums(&x, &asn)).1
+        };
+        let h = 1e-6;
+        for k in [0, 2, 4] {
+            for d in 0..6 {
+                let mut e = Vector6::zeros();
+                e[d] = h;
+                let fd = (gradient(k, &e) - gradient(k, &(-e))) / (2.0 * h);
+                let err = (fd - c[k].column(d)).amax();
+                assert!(
+                    err < 0.02 * scale,
+                    "frame {k}, axis {d}: {fd:?} vs {:?}",
+                    c[k].column(d)
+                );
+            }
+        }
     }
 
     #[test]

@@ -105,6 +105,13 @@ pub fn cloud_motion_covariance(robot: &CellRobot, views: &[DepthView]) -> Matrix
     cov
 }
 
+/// The covariance of a twist `[ω, v]` whose every rotation axis has 1-σ `sr` (radians) and every translation
+/// axis `st` (metres), all independent.
+pub fn twist_covariance(sr: f64, st: f64) -> Matrix6<f64> {
+    let (r, t) = (sr * sr, st * st);
+    Matrix6::from_diagonal(&Vector6::new(r, r, r, t, t, t))
+}
+
 /// The adjoint of `t` for twists `[ω, v]`: a twist in `t`'s source frame expressed in its target frame.
 pub fn adjoint(t: &Isometry3<f64>) -> Matrix6<f64> {
     let r = *t.rotation.to_rotation_matrix().matrix();

@@ -106,6 +106,21 @@ pub fn kuka_rotation(a: f64, b: f64, c: f64) -> Matrix3<f64> {
     )
 }
 
+/// Writes flange poses as a KUKA pose file (`frame,x_mm,…,c_deg`).
+fn write_poses(path: &Path, ids: &[String], pose: impl Fn(usize) -> Isometry3<f64>) {
+    super::write_kuka_pose_file(path, ids, None, |i| {
+        let a = kuka_from_isometry(&pose(i));
+        depthcal::geometry::pose::KukaPose {
+            x_mm: a[0],
+            y_mm: a[1],
+            z_mm: a[2],
+            a_deg: a[3],
+            b_deg: a[4],
+            c_deg: a[5],
+        }
+    })
+}
+
 /// `[x_mm, y_mm, z_mm, a_deg, b_deg, c_deg]` of a pose in metres.
 pub fn kuka_from_isometry(t: &Isometry3<f64>) -> [f64; 6] {
     let r = t.rotation.to_rotation_matrix().into_inner();
@@ -1763,22 +1778,40 @@ pub fn generate(dir: &Path, cfg: &ForeignConfig) -> ForeignCell {
                 );
             }
         }
+        if cfg.pose_noise_mm > 0.0 {
+            // For studies of the pose scatter: the true poses, and the true poses all moved by the mean of
+            // the noise put in (left increments in the base frame), which is what a perfect per-frame
+            // correction with a zero-mean gauge would leave.
+            let incs: Vec<(Vector3<f64>, Vector3<f64>)> = written
+                .iter()
+                .zip(&poses)
+                .map(|(w, p)| {
+                    let e = w * p.inverse();
+                    (e.rotation.scaled_axis(), e.translation.vector)
+                })
+                .collect();
+            let m = incs.len().max(1) as f64;
+            let mean = Isometry3::from_parts(
+                Translation3::from(incs.iter().map(|i| i.1).sum::<Vector3<f64>>() / m),
+                UnitQuaternion::from_scaled_axis(
+                    incs.iter().map(|i| i.0).sum::<Vector3<f64>>() / m,
+                ),
+            );
+            for (file, moved) in [
+                ("poses_true.csv", None),
+                ("poses_mean_noise.csv", Some(mean)),
+            ] {
+                write_poses(&dir.join(name).join(file), &ids, |i| {
+                    moved.map_or(poses[i], |e| e * poses[i])
+                });
+            }
+        }
         if let Some((r, frame, mm, deg)) = cfg.sabotage.pose_row {
             if r == k {
                 written[frame] = perturbed(&written[frame], &mut srng, mm, deg);
             }
         }
-        super::write_kuka_pose_file(&dir.join(name).join("poses.csv"), &ids, None, |i| {
-            let a = kuka_from_isometry(&written[i]);
-            depthcal::geometry::pose::KukaPose {
-                x_mm: a[0],
-                y_mm: a[1],
-                z_mm: a[2],
-                a_deg: a[3],
-                b_deg: a[4],
-                c_deg: a[5],
-            }
-        });
+        write_poses(&dir.join(name).join("poses.csv"), &ids, |i| written[i]);
         t_base_ee_all[k] = poses;
         for (i, v) in views[k].iter().enumerate() {
             write_png16(

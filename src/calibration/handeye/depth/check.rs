@@ -19,7 +19,8 @@
 //! hand-eyes 4 mm / 1.5° off 752 and 321; the demo cell 0.2 and 0.0. The limit is the 99.9% quantile of
 //! χ² with six degrees of freedom, 22.46 (a distance of 4.74 σ).
 
-use super::{refine_hand_eye_from_depth, HandEyeDepthConfig};
+use super::{refine_hand_eye_under_scatter, HandEyeDepthConfig};
+use crate::calibration::uncertainty::twist_covariance;
 use crate::camera::DepthView;
 use crate::cell::CellRobot;
 use crate::error::Result;
@@ -201,15 +202,17 @@ pub fn check_hand_eye(
     check_hand_eye_under_scatter(robot, views, cfg, None)
 }
 
-/// [`check_hand_eye`] of a robot whose poses scatter: `scatter` is the covariance (camera frame, as the
-/// change) of the hand-eye change that the poses' scatter alone would make the depth ask for
-/// ([`crate::calibration::pose_scatter::PoseScatter::hand_eye_covariance`]); it is added to the test's
-/// covariance, so that scattered poses are told apart from a hand-eye that is off.
+/// [`check_hand_eye`] of a robot whose poses scatter: `scatter` is the poses' 1-σ per axis at the scene
+/// (rotation in radians, translation in metres), the scatter a hand-eye change does not explain
+/// ([`crate::calibration::pose_scatter::PoseScatter::beyond_hand_eye_mm`]: a hand-eye that is off must not
+/// widen its own allowance). The covariance of the hand-eye change that independent pose errors of that size cause in
+/// this very fit (its sensitivity to each frame's pose, propagated: [`super::refine_hand_eye_under_scatter`])
+/// is added to the test's covariance, so that scattered poses are told apart from a hand-eye that is off.
 pub fn check_hand_eye_under_scatter(
     robot: &CellRobot,
     views: Option<&[DepthView]>,
     cfg: &HandEyeCheckConfig,
-    scatter: Option<&Matrix6<f64>>,
+    scatter: Option<(f64, f64)>,
 ) -> Result<HandEyeCheck> {
     cfg.validate()?;
     if robot.frames.len() < cfg.depth.min_frames {
@@ -230,7 +233,7 @@ pub fn check_hand_eye_under_scatter(
             .min(cfg.depth.sample_points),
         ..cfg.depth.clone()
     };
-    let fit = refine_hand_eye_from_depth(robot, views, &depth)?;
+    let (fit, scatter) = refine_hand_eye_under_scatter(robot, views, &depth, scatter)?;
     let determined: Vec<&'static str> = fit
         .dofs
         .iter()
@@ -252,15 +255,8 @@ pub fn check_hand_eye_under_scatter(
         Vector6::new(r.x, r.y, r.z, t.x, t.y, t.z)
     };
     let (sr, st) = (sigma_deg.to_radians(), sigma_mm * 1e-3);
-    let prior = Matrix6::from_diagonal(&Vector6::new(
-        sr * sr,
-        sr * sr,
-        sr * sr,
-        st * st,
-        st * st,
-        st * st,
-    ));
-    let Some(d2) = (fit.covariance + prior + scatter.copied().unwrap_or_else(Matrix6::zeros))
+    let prior = twist_covariance(sr, st);
+    let Some(d2) = (fit.covariance + prior + scatter.unwrap_or_else(Matrix6::zeros))
         .cholesky()
         .map(|c| delta.dot(&c.solve(&delta)))
         .filter(|d2| d2.is_finite())

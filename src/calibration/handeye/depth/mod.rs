@@ -444,6 +444,33 @@ impl Solver<'_> {
         (x, iterations, converged, cov)
     }
 
+    /// The covariance of the hand-eye change at `x` that independent flange pose errors of 1-σ `sr`
+    /// (radians) and `st` (metres) per axis, about the scene's centre, cause through the finest gate's
+    /// normal equations (see [`refine_hand_eye_under_scatter`]).
+    fn pose_noise_covariance(&self, x: &Isometry3<f64>, sr: f64, st: f64) -> Matrix6<f64> {
+        let cfg = self.cfg;
+        let gate = *cfg.gates_m.last().unwrap_or(&0.01);
+        let (h, _, _, _, _) = total(&self.sums(x, gate));
+        let (_, h_pinv, _) = solve(&h, &Vector6::zeros(), self.l, cfg.null_ratio);
+        let p = self.problem;
+        let (sum, count) = p
+            .points
+            .iter()
+            .zip(&p.t_base_ee)
+            .flat_map(|(f, e)| {
+                let c = e * x;
+                f.points
+                    .iter()
+                    .map(move |q| (c * nalgebra::Point3::from(*q)).coords)
+            })
+            .fold((Vector3::zeros(), 0usize), |(s, n), q| (s + q, n + 1));
+        let centre = sum / count.max(1) as f64;
+        let sens = p.pose_sensitivity(x, &(self.assoc)(gate), &centre);
+        let e = crate::calibration::uncertainty::twist_covariance(sr, st);
+        let meat: Matrix6<f64> = sens.iter().map(|c| c * e * c.transpose()).sum();
+        h_pinv * meat * h_pinv.transpose()
+    }
+
     /// The covariance of the hand-eye at `x` (see the module documentation), the tests and refused tests
     /// at the finest gate, and the frames with tests.
     fn covariance(&self, x: &Isometry3<f64>) -> (Matrix6<f64>, usize, usize, usize) {
@@ -683,6 +710,20 @@ pub fn refine_hand_eye_from_depth(
     views: Option<&[DepthView]>,
     cfg: &HandEyeDepthConfig,
 ) -> Result<HandEyeDepthResult> {
+    Ok(refine_hand_eye_under_scatter(robot, views, cfg, None)?.0)
+}
+
+/// [`refine_hand_eye_from_depth`], and with `scatter` (the flange poses' 1-σ per axis as a left increment
+/// in the base frame about the scene's centre: rotation in radians, translation in metres) the covariance
+/// of the hand-eye change that pose errors of that size cause in this fit: `H⁻¹ (Σ_k C_k Σ C_kᵀ) H⁻¹`
+/// with each frame's sensitivity `C_k` ([`Problem::pose_sensitivity`]), the frames' errors independent.
+/// An error all frames share moves no relative pose and changes nothing (the `C_k` sum to zero).
+pub(crate) fn refine_hand_eye_under_scatter(
+    robot: &CellRobot,
+    views: Option<&[DepthView]>,
+    cfg: &HandEyeDepthConfig,
+    scatter: Option<(f64, f64)>,
+) -> Result<(HandEyeDepthResult, Option<Matrix6<f64>>)> {
     cfg.validate()?;
     let n = robot.frames.len();
     if n < cfg.min_frames {
@@ -773,7 +814,7 @@ pub fn refine_hand_eye_from_depth(
     let ids: Vec<String> = robot.frames.iter().map(|f| f.id.clone()).collect();
     let suggested_poses =
         plan::suggest_poses(&weak_directions, &motion, &problem.t_base_ee, &ids, &x0, l);
-    Ok(HandEyeDepthResult {
+    let result = HandEyeDepthResult {
         robot: robot.name.clone(),
         frames_used: frames_with_tests,
         initial: x0,
@@ -795,7 +836,9 @@ pub fn refine_hand_eye_from_depth(
         trusted: reasons.is_empty(),
         reasons,
         suggestions,
-    })
+    };
+    let under_scatter = scatter.map(|(sr, st)| solver.pose_noise_covariance(&x, sr, st));
+    Ok((result, under_scatter))
 }
 
 #[cfg(test)]

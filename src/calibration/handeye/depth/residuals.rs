@@ -8,11 +8,14 @@
 //! `dq/dω = −R·[p]× + [q]×`, `dq/dv = R − I`: the translation is seen only through the rotation between
 //! the frames.
 
-use crate::calibration::consistency::{sample_view, ConsistencyConfig, Sample, SmoothDepth};
+use crate::calibration::consistency::{
+    sample_view, splitmix, ConsistencyConfig, Sample, SmoothDepth,
+};
 use crate::camera::{DepthView, Intrinsics};
 use crate::registration::RobustKernel;
 use nalgebra::{Isometry3, Matrix3, Matrix6, RowVector6, Vector3, Vector6};
 use rayon::prelude::*;
+use std::collections::BTreeMap;
 
 /// A view's surface at pixel `(u, v)`: the point (camera frame, metres) and its unit normal oriented
 /// toward the camera (the side the camera saw), from the view's block depths one block to each side.
@@ -73,6 +76,70 @@ pub(crate) fn frame_points(depths: &[SmoothDepth], intr: &Intrinsics) -> Vec<Fra
         .collect()
 }
 
+/// Samples each view's smooth blocks spread over the directions of their normals (normal-space
+/// sampling, Rusinkiewicz and Levoy 2001) and keeps those with a normal: the blocks are binned by their
+/// normal (camera frame), `bins` steps per axis, and taken from the bins in turn, each bin in a fixed
+/// pseudo-random order, until `n` are taken. A view mostly of table and floor then still gives the few
+/// blocks whose normals pin the other directions (the objects' sides) a share of the sample.
+pub(crate) fn frame_points_by_normals(
+    depths: &[SmoothDepth],
+    intr: &Intrinsics,
+    n: usize,
+    bins: u32,
+) -> Vec<FramePoints> {
+    let bins = bins.max(1);
+    let bin = |x: f64| {
+        ((x + 1.0) * 0.5 * bins as f64)
+            .floor()
+            .clamp(0.0, (bins - 1) as f64) as u32
+    };
+    depths
+        .par_iter()
+        .map(|depth| {
+            let every = ConsistencyConfig {
+                sample_points: usize::MAX,
+                ..depth.cfg.clone()
+            };
+            // Per bin (in key order): (rank, index into `found`).
+            let mut binned: BTreeMap<[u32; 3], Vec<(u64, usize)>> = BTreeMap::new();
+            let mut found = Vec::new();
+            for (k, s) in sample_view(depth.view, intr, &every).iter().enumerate() {
+                if let Some((p, nrm)) = surface_at(depth, intr, s.u as f64, s.v as f64) {
+                    binned
+                        .entry([bin(nrm.x), bin(nrm.y), bin(nrm.z)])
+                        .or_default()
+                        .push((splitmix(k as u64), found.len()));
+                    found.push((p, nrm));
+                }
+            }
+            let mut lists: Vec<Vec<(u64, usize)>> = binned.into_values().collect();
+            for l in &mut lists {
+                // Highest rank last: `pop` takes the bins' members in ascending rank.
+                l.sort_unstable_by(|a, b| b.cmp(a));
+            }
+            let want = n.min(found.len());
+            let mut chosen = Vec::with_capacity(want);
+            while chosen.len() < want {
+                for l in &mut lists {
+                    if chosen.len() == want {
+                        break;
+                    }
+                    if let Some((_, i)) = l.pop() {
+                        chosen.push(i);
+                    }
+                }
+            }
+            chosen.sort_unstable();
+            let mut out = FramePoints::default();
+            for i in chosen {
+                out.points.push(found[i].0);
+                out.normals.push(found[i].1);
+            }
+            out
+        })
+        .collect()
+}
+
 /// The settings the association and weighting use.
 #[derive(Clone, Debug)]
 pub(crate) struct Association {
@@ -124,8 +191,24 @@ impl<'a> Problem<'a> {
         intr: &'a Intrinsics,
         cfg: &'a ConsistencyConfig,
     ) -> Self {
+        Problem::with_sampling(t_base_ee, views, intr, cfg, 0)
+    }
+
+    /// [`Problem::new`], with each frame's sample spread over its normals in `normal_bins` bins per axis
+    /// ([`frame_points_by_normals`]; 0: uniform, as [`Problem::new`]).
+    pub(crate) fn with_sampling(
+        t_base_ee: Vec<Isometry3<f64>>,
+        views: &'a [DepthView],
+        intr: &'a Intrinsics,
+        cfg: &'a ConsistencyConfig,
+        normal_bins: u32,
+    ) -> Self {
         let depths: Vec<SmoothDepth> = views.par_iter().map(|v| SmoothDepth::new(v, cfg)).collect();
-        let points = frame_points(&depths, intr);
+        let points = if normal_bins > 0 {
+            frame_points_by_normals(&depths, intr, cfg.sample_points, normal_bins)
+        } else {
+            frame_points(&depths, intr)
+        };
         Problem {
             t_base_ee,
             depths,
@@ -230,6 +313,80 @@ impl PointTest {
                 weight,
             } => Some((nj, res, sigma, weight)),
         }
+    }
+}
+
+impl Problem<'_> {
+    /// How the residuals at hand-eye `x` (association `a`) answer to errors of the flange poses: per frame
+    /// `k`, `C_k = Σ w/σ² J_xᵀ J_εk` over every test, where `J_x` is a test's row for the hand-eye change
+    /// (as in [`Problem::sums`]) and `ε_k` a left increment of frame `k`'s flange pose in the base frame, a
+    /// twist `[ω, v]` about `centre` (metres, base frame). A fit that solves `H δ = −g` then moves by
+    /// `−H⁻¹ Σ_k C_k ε_k` to first order. Frame order; deterministic at any thread count.
+    pub(crate) fn pose_sensitivity(
+        &self,
+        x: &Isometry3<f64>,
+        a: &Association,
+        centre: &Vector3<f64>,
+    ) -> Vec<Matrix6<f64>> {
+        let n = self.frames();
+        let x_inv = x.inverse();
+        let size = (self.intr.width as f64, self.intr.height as f64);
+        // Per source frame i: its own block, and the blocks of the frames its points were tested in.
+        #[allow(clippy::type_complexity)]
+        let per_frame: Vec<(Matrix6<f64>, Vec<(usize, Matrix6<f64>)>)> = (0..n)
+            .into_par_iter()
+            .map(|i| {
+                let mut own = Matrix6::zeros();
+                let mut others = Vec::new();
+                let fp = &self.points[i];
+                let base_cam_i = self.t_base_ee[i] * x;
+                let mut wrong_side = 0usize;
+                for j in (0..n).filter(|&j| j != i) {
+                    let cam_j_base = x_inv * self.t_base_ee[j].inverse();
+                    let t = cam_j_base * base_cam_i;
+                    let r = *t.rotation.to_rotation_matrix().matrix();
+                    let tv = t.translation.vector;
+                    let r_minus_i = r - Matrix3::identity();
+                    let r_cj = *cam_j_base.rotation.to_rotation_matrix().matrix();
+                    let target = Target {
+                        depth: &self.depths[j],
+                        intr: self.intr,
+                        size,
+                    };
+                    let mut block = Matrix6::zeros();
+                    for (p, np) in fp.points.iter().zip(&fp.normals) {
+                        let q = r * p + tv;
+                        let test =
+                            test_point(&target, self.cfg, a, &r, (p, np), &q, |_, _, _, _| true);
+                        let Some((nj, _, sigma, wk)) = test.hit(&mut wrong_side) else {
+                            continue;
+                        };
+                        let jw = nj.transpose() * (skew(&q) - r * skew(p));
+                        let jv = nj.transpose() * r_minus_i;
+                        let jrow = RowVector6::new(jw[0], jw[1], jw[2], jv[0], jv[1], jv[2]);
+                        // The point in the base, about the centre: frame i's increment moves it by
+                        // ω × (y − c) + v, seen in camera j through its rotation.
+                        let y = (base_cam_i * nalgebra::Point3::from(*p)).coords - centre;
+                        let nb = r_cj.transpose() * nj;
+                        let ew = y.cross(&nb);
+                        let erow = RowVector6::new(ew[0], ew[1], ew[2], nb[0], nb[1], nb[2]);
+                        block += jrow.transpose() * erow * (wk / (sigma * sigma));
+                    }
+                    own += block;
+                    // Frame j's increment moves its camera, and the point the other way.
+                    others.push((j, -block));
+                }
+                (own, others)
+            })
+            .collect();
+        let mut out = vec![Matrix6::zeros(); n];
+        for (i, (own, others)) in per_frame.into_iter().enumerate() {
+            out[i] += own;
+            for (j, b) in others {
+                out[j] += b;
+            }
+        }
+        out
     }
 }
 
