@@ -47,6 +47,21 @@ pub(crate) fn surface_at(
     Some((p, if n.dot(&p) > 0.0 { -n } else { n }))
 }
 
+/// A test's row for the hand-eye change `[ω, v]` (camera frame): the point `p` of one frame, moved into the
+/// other camera as `q = r·p + t`, against the surface normal `nj` there; `r_minus_i` is `r − I`.
+#[inline]
+fn hand_eye_row(
+    nj: &Vector3<f64>,
+    q: &Vector3<f64>,
+    p: &Vector3<f64>,
+    r: &Matrix3<f64>,
+    r_minus_i: &Matrix3<f64>,
+) -> RowVector6<f64> {
+    let jw = nj.transpose() * (skew(q) - r * skew(p));
+    let jv = nj.transpose() * r_minus_i;
+    RowVector6::new(jw[0], jw[1], jw[2], jv[0], jv[1], jv[2])
+}
+
 pub(crate) fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
 }
@@ -361,9 +376,7 @@ impl Problem<'_> {
                         let Some((nj, _, sigma, wk)) = test.hit(&mut wrong_side) else {
                             continue;
                         };
-                        let jw = nj.transpose() * (skew(&q) - r * skew(p));
-                        let jv = nj.transpose() * r_minus_i;
-                        let jrow = RowVector6::new(jw[0], jw[1], jw[2], jv[0], jv[1], jv[2]);
+                        let jrow = hand_eye_row(&nj, &q, p, &r, &r_minus_i);
                         // The point in the base, about the centre: frame i's increment moves it by
                         // ω × (y − c) + v, seen in camera j through its rotation.
                         let y = (base_cam_i * nalgebra::Point3::from(*p)).coords - centre;
@@ -422,9 +435,7 @@ impl Problem<'_> {
                         let Some((nj, res, sigma, wk)) = test.hit(&mut s.wrong_side) else {
                             continue;
                         };
-                        let jw = nj.transpose() * (skew(&q) - r * skew(p));
-                        let jv = nj.transpose() * r_minus_i;
-                        let jrow = RowVector6::new(jw[0], jw[1], jw[2], jv[0], jv[1], jv[2]);
+                        let jrow = hand_eye_row(&nj, &q, p, &r, &r_minus_i);
                         let ws = wk / (sigma * sigma);
                         s.h += jrow.transpose() * jrow * ws;
                         s.g += jrow.transpose() * (res * ws);
