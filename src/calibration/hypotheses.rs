@@ -35,6 +35,7 @@ use crate::geometry::transform::pose_error;
 use crate::registration::pipeline::Ambiguity;
 use crate::registration::{register, RegisterConfig, Registration};
 use nalgebra::Isometry3;
+use rayon::prelude::*;
 
 /// Largest free-space violation of a trusted calibration beyond what each robot's own frames show.
 /// Measured on simulated cells: the truth 0.4–1.5%, wrong answers that align the clouds as well 8–17%.
@@ -199,7 +200,9 @@ impl Judged {
 /// Refines each start with `rcfg` on the fused clouds without the other robot's body under that start
 /// ([`without_robot_bodies`] with `body`), and judges it: its agreement and, with `test`, its free-space
 /// check. In the order of `starts`, less the starts whose refinement failed (a hypothesis far off can
-/// leave ICP without any pair: it explains nothing); the first failure when every one failed.
+/// leave ICP without any pair: it explains nothing); the first failure when every one failed. The starts
+/// are refined side by side (each refinement is deterministic at any thread count, and the results are
+/// taken in the order of `starts`).
 pub fn refine_and_judge(
     fused: &FusedCell,
     starts: &[Isometry3<f64>],
@@ -207,19 +210,24 @@ pub fn refine_and_judge(
     body: &VisibilityConfig,
     test: Option<&FreeSpaceTest>,
 ) -> Result<Vec<Judged>> {
+    let refined: Vec<Result<Judged>> = starts
+        .par_iter()
+        .map(|start| {
+            let (reference, other) = without_robot_bodies(fused, start, body);
+            let registration = register(&other, &reference, Some(start), rcfg)?;
+            let free_space = test.map(|t| t.check(&registration.transform));
+            Ok(Judged {
+                start: *start,
+                registration,
+                free_space,
+            })
+        })
+        .collect();
     let mut judged = Vec::with_capacity(starts.len());
     let mut first_error = None;
-    for (k, start) in starts.iter().enumerate() {
-        let (reference, other) = without_robot_bodies(fused, start, body);
-        match register(&other, &reference, Some(start), rcfg) {
-            Ok(registration) => {
-                let free_space = test.map(|t| t.check(&registration.transform));
-                judged.push(Judged {
-                    start: *start,
-                    registration,
-                    free_space,
-                });
-            }
+    for (k, r) in refined.into_iter().enumerate() {
+        match r {
+            Ok(j) => judged.push(j),
             Err(e) => {
                 log::info!("hypothesis {k} left out: its refinement failed: {e}");
                 first_error.get_or_insert(e);

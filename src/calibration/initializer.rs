@@ -150,14 +150,39 @@ impl Initializer for GlobalRegistration {
             let f = free_space_violation(&rs, &os, t, v);
             (-f / v.penalty_scale).exp()
         };
-        let r = register_with_prior(
-            &other.cloud,
-            &reference.cloud,
-            None,
-            &cfg,
-            &mut |_| {},
-            vis.as_ref().map(|_| &prior as HypothesisPrior),
-        )?;
+        // The cell search and `register`'s own (below) run side by side: each is deterministic at any
+        // thread count, and their hypotheses are pooled in a fixed order.
+        let plain_cfg = RegisterConfig {
+            seed: input.seed,
+            icp_levels: 1,
+            degeneracy_slide_voxels: 0.0,
+            ..RegisterConfig::default()
+        };
+        let (r, p) = rayon::join(
+            || {
+                register_with_prior(
+                    &other.cloud,
+                    &reference.cloud,
+                    None,
+                    &cfg,
+                    &mut |_| {},
+                    vis.as_ref().map(|_| &prior as HypothesisPrior),
+                )
+            },
+            || {
+                self.search.plain.then(|| {
+                    register_with_prior(
+                        &other.cloud,
+                        &reference.cloud,
+                        None,
+                        &plain_cfg,
+                        &mut |_| {},
+                        None,
+                    )
+                })
+            },
+        );
+        let r = r?;
         let g = r.global.as_ref().expect("global stage ran");
         log::info!("depth initialiser stages (ms): {:?}", r.timings_ms);
         let per_search = self.search.hypotheses_per_search.max(1);
@@ -173,21 +198,8 @@ impl Initializer for GlobalRegistration {
                 pool.push(*h);
             }
         }
-        if self.search.plain {
-            let plain = RegisterConfig {
-                seed: input.seed,
-                icp_levels: 1,
-                degeneracy_slide_voxels: 0.0,
-                ..RegisterConfig::default()
-            };
-            let p = register_with_prior(
-                &other.cloud,
-                &reference.cloud,
-                None,
-                &plain,
-                &mut |_| {},
-                None,
-            )?;
+        if let Some(p) = p {
+            let p = p?;
             log::info!("plain search stages (ms): {:?}", p.timings_ms);
             let accepted = p
                 .hypotheses
