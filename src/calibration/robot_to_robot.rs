@@ -127,6 +127,7 @@ impl Calibration {
                 condition: f64::NAN,
                 weak: Vec::new(),
                 held: Vec::new(),
+                free_below: f64::INFINITY,
             },
             priors_used: Vec::new(),
             fused_points: [0, 0],
@@ -325,6 +326,7 @@ pub fn refine_pair(
             condition: f64::NAN,
             weak: Vec::new(),
             held: Vec::new(),
+            free_below: f64::INFINITY,
         },
         priors_used: fused.priors.describe(),
         fused_points: [ref_cloud.cloud.len(), other_cloud.cloud.len()],
@@ -435,6 +437,7 @@ pub fn refine_pair(
         let (reference, other) = without_robot_bodies(fused, &chosen.start, &cfg.visibility);
         let hold = RegisterConfig {
             degeneracy_slide_voxels: cfg.register.degeneracy_slide_voxels,
+            degeneracy_threshold: cfg.register.degeneracy_threshold,
             ..rcfg.clone()
         };
         recheck_weak_directions(&mut reg, other, reference, &hold)?;

@@ -77,9 +77,11 @@ pub struct RegisterConfig {
     /// Most source points used by one ICP level (default 20 000; a deterministic stride subsample).
     pub icp_max_source_points: usize,
     /// Relative eigenvalue (of the coarsest ICP level's information, rotations scaled by the RMS radius)
-    /// below which a direction is reported as unconstrained (default 6e-4). Measured: a noisy bare plane's
+    /// below which the geometry leaves a direction free (default 6e-4). Measured: a noisy bare plane's
     /// free directions reach 2e-5 to 2.2e-4; simulated cells' weakest direction (yaw, table-dominated)
-    /// 1.9e-3 to 7e-3; 3DMatch, LiDAR 0.19-0.28.
+    /// 1.9e-3 to 7e-3; 3DMatch, LiDAR 0.19-0.28. Without the hold test the directions below it are
+    /// reported as unconstrained; with it, a direction the test does not hold is called unconstrained
+    /// only below it, and constrained only weakly above it ([`crate::registration::quality::Degeneracy::free_below`]).
     pub degeneracy_threshold: f64,
     /// The hold test of weak directions. Every direction whose relative strength is below
     /// [`RegisterConfig::degeneracy_test_threshold`] is tested: ICP at the finest level, started this many
@@ -1212,6 +1214,7 @@ fn confirm_weak_directions(
         condition,
         weak,
         mut held,
+        free_below,
     } = deg;
     let mut free = Vec::new();
     for mut w in weak {
@@ -1246,6 +1249,7 @@ fn confirm_weak_directions(
         condition,
         weak: free,
         held,
+        free_below,
     })
 }
 
@@ -1328,12 +1332,15 @@ fn coarse_level_degeneracy(r: &IcpResult, s_sub: &[[f32; 3]], cfg: &RegisterConf
         .map(|p| (r.transform * nalgebra::Point3::from(to_v64(p))).coords)
         .collect();
     let (center, length) = centre_and_radius(&moved);
-    degeneracy(
-        &r.information,
-        &center,
-        length,
-        cfg.degeneracy_candidate_threshold(),
-    )
+    Degeneracy {
+        free_below: cfg.degeneracy_threshold,
+        ..degeneracy(
+            &r.information,
+            &center,
+            length,
+            cfg.degeneracy_candidate_threshold(),
+        )
+    }
 }
 
 /// Stage 7. Takes the ICP pyramid's result; gives the degeneracy (judged at the coarsest level) and the
@@ -1385,23 +1392,32 @@ fn quality(
     (deg, cov)
 }
 
-/// The warning a degenerate result carries (`None` when no direction is unconstrained).
+/// The warning a degenerate result carries (`None` when no direction is weak): "unconstrained" only when
+/// the geometry leaves some direction free ([`Degeneracy::free_by_geometry`]), else "held only weakly".
 fn degeneracy_warning(deg: &Degeneracy) -> Option<String> {
     deg.is_degenerate().then(|| {
+        let free = deg.weak.iter().any(|w| deg.free_by_geometry(w));
         format!(
-            "{DEGENERACY_WARNING}: {} (the result may slide along it)",
+            "{DEGENERACY_WARNING} {}: {} (the result may slide along it)",
+            if free {
+                "leaves some motion unconstrained"
+            } else {
+                "holds some motion only weakly"
+            },
             deg.describe()
         )
     })
 }
 
 /// How [`degeneracy_warning`] begins.
-const DEGENERACY_WARNING: &str = "the geometry leaves some motion unconstrained";
+const DEGENERACY_WARNING: &str = "the geometry";
 
 /// Runs the hold test of stage 6b ([`RegisterConfig::degeneracy_slide_voxels`]) on a registration of
 /// `source` onto `target` made with `cfg` but without it (its weak directions judged by their eigenvalues
-/// alone), then updates its degeneracy, its warnings and its trust verdict. For callers that refine many
-/// hypotheses and need the test only for the one they keep (`calibrate`).
+/// alone), then updates its degeneracy, its warnings and its trust verdict; `cfg`'s
+/// [`RegisterConfig::degeneracy_threshold`] says which weak directions the geometry leaves free
+/// ([`Degeneracy::free_below`]). For callers that refine many hypotheses and need the test only for the
+/// one they keep (`calibrate`).
 pub fn recheck_weak_directions(
     reg: &mut Registration,
     mut src: PointCloud,
@@ -1414,7 +1430,10 @@ pub fn recheck_weak_directions(
     src.drop_non_finite();
     tgt.drop_non_finite();
     reg.degeneracy = confirm_weak_directions(
-        reg.degeneracy.clone(),
+        Degeneracy {
+            free_below: cfg.degeneracy_threshold,
+            ..reg.degeneracy.clone()
+        },
         &src,
         &tgt,
         &reg.transform,

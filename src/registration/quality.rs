@@ -112,12 +112,26 @@ pub struct Degeneracy {
     /// each way, came back (a floor that outweighs the objects standing on it: the yaw is weak next to the
     /// floor's tilt and height, not unconstrained).
     pub held: Vec<WeakDirection>,
+    /// The relative strength below which the geometry itself leaves a direction free: a noisy bare
+    /// plane's in-plane motions measure 2e-5 to 2.2e-4
+    /// ([`crate::registration::RegisterConfig::degeneracy_threshold`], 6e-4 by default). A weak direction
+    /// at or above it is constrained by the geometry, only weakly: when the hold test finds that ICP does
+    /// not hold the result along it, the reason says so and does not call it unconstrained. Infinite
+    /// (every weak direction counts as free) when not known.
+    #[serde(skip)]
+    pub free_below: f64,
 }
 
 impl Degeneracy {
     /// True when some direction is unconstrained.
     pub fn is_degenerate(&self) -> bool {
         !self.weak.is_empty()
+    }
+
+    /// Whether the geometry itself leaves `w` free: its relative strength is below
+    /// [`Degeneracy::free_below`], a bare plane's level.
+    pub fn free_by_geometry(&self, w: &WeakDirection) -> bool {
+        w.relative_strength < self.free_below
     }
 
     /// A one-line human description, e.g. "translation along (0.00, 0.00, 1.00) is unconstrained".
@@ -192,6 +206,7 @@ pub fn degeneracy(
         condition: (min / max).max(0.0),
         weak,
         held: Vec::new(),
+        free_below: threshold,
     }
 }
 

@@ -7,6 +7,7 @@
 
 use crate::error::{Error, Result};
 use crate::registration::pipeline::Registration;
+use crate::registration::quality::{Degeneracy, WeakDirection};
 use serde::{Deserialize, Serialize};
 
 /// Thresholds of the quality gate.
@@ -113,33 +114,44 @@ impl Trust {
 /// plane's free directions close at most about three quarters of it, docs/accuracy.md).
 const LOOSE_BELOW_FRACTION: f64 = 0.25;
 
-/// Why a degenerate registration is not trusted, true of what was measured: directions the hold test found
-/// free ("unconstrained"), or held more loosely than its bar ("held only loosely"), each with its figures;
-/// directions judged by their eigenvalue alone (no hold test) are "unconstrained".
-fn degeneracy_reason(d: &crate::registration::quality::Degeneracy, unit: &str) -> String {
-    let loose = d
-        .weak
-        .iter()
-        .all(|w| w.hold.is_some_and(|h| h.fraction() < LOOSE_BELOW_FRACTION));
-    let items: Vec<String> = d
-        .weak
-        .iter()
-        .map(|w| match w.hold_description(unit) {
-            Some(h) => format!("{}: {h}", w.label()),
-            None => w.label(),
-        })
-        .collect();
-    if loose {
-        format!(
-            "the geometry holds the result only loosely ({}): ICP started off either way along it did not come back to one answer, so the result may lie anywhere between",
-            items.join("; ")
-        )
-    } else {
-        format!(
-            "the geometry leaves motion unconstrained ({}): ICP started off along it stayed off, so the result may slide along it",
-            items.join("; ")
-        )
+/// Why a degenerate registration is not trusted, true of what was measured, one reason per kind of weak
+/// direction, each with its figures:
+/// - "unconstrained": the geometry leaves it free (its relative strength below
+///   [`Degeneracy::free_below`], a bare plane's level) and ICP started off along it stayed off, or it was
+///   judged by its eigenvalue alone (no hold test);
+/// - "constrains only weakly": the geometry does constrain it (above a bare plane's level) but ICP started
+///   off along it stayed off: the basin is too flat for the refinement, not free;
+/// - "held only loosely": ICP came most of the way back, not to one answer.
+fn degeneracy_reasons(d: &Degeneracy, unit: &str) -> Vec<String> {
+    let item = |w: &WeakDirection| {
+        let strength = format!("{:.1e} of the strongest direction", w.relative_strength);
+        match w.hold_description(unit) {
+            Some(h) => format!("{}, {strength}: {h}", w.label()),
+            None => format!("{}, {strength}", w.label()),
+        }
+    };
+    let group = |pick: &dyn Fn(&WeakDirection) -> bool| -> Option<String> {
+        let items: Vec<String> = d.weak.iter().filter(|w| pick(w)).map(item).collect();
+        (!items.is_empty()).then(|| items.join("; "))
+    };
+    let loose = |w: &WeakDirection| w.hold.is_some_and(|h| h.fraction() < LOOSE_BELOW_FRACTION);
+    let mut out = Vec::new();
+    if let Some(items) = group(&|w| !loose(w) && (w.hold.is_none() || d.free_by_geometry(w))) {
+        out.push(format!(
+            "the geometry leaves motion unconstrained ({items}): ICP started off along it stayed off, so the result may slide along it"
+        ));
     }
+    if let Some(items) = group(&|w| !loose(w) && w.hold.is_some() && !d.free_by_geometry(w)) {
+        out.push(format!(
+            "the geometry constrains the result only weakly ({items}): ICP started off along it stayed off, so the result may lie anywhere between"
+        ));
+    }
+    if let Some(items) = group(&|w| loose(w)) {
+        out.push(format!(
+            "the geometry holds the result only loosely ({items}): ICP started off either way along it did not come back to one answer, so the result may lie anywhere between"
+        ));
+    }
+    out
 }
 
 /// The registration checks: converged, not degenerate, not ambiguous, enough fitness, overlap and surface
@@ -152,9 +164,9 @@ pub fn assess_registration(r: &Registration, cfg: &TrustConfig, unit: &str) -> T
             "start from a closer initial guess (--init), or check that the clouds show the same scene",
         );
     }
-    if r.degeneracy.is_degenerate() {
+    for reason in degeneracy_reasons(&r.degeneracy, unit) {
         t.fail(
-            degeneracy_reason(&r.degeneracy, unit),
+            reason,
             "capture views with more 3-D structure in the shared part (objects of different orientations, not a bare plane)",
         );
     }
@@ -210,7 +222,7 @@ pub fn assess_registration(r: &Registration, cfg: &TrustConfig, unit: &str) -> T
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::registration::quality::{Degeneracy, HoldTest, WeakDirection};
+    use crate::registration::quality::HoldTest;
 
     fn yaw(hold: Option<(f64, f64)>) -> WeakDirection {
         let mut w = WeakDirection {
@@ -227,19 +239,23 @@ mod tests {
     }
 
     fn reason(weak: Vec<WeakDirection>) -> String {
-        degeneracy_reason(
+        degeneracy_reasons(
             &Degeneracy {
                 condition: 3e-4,
                 weak,
                 held: Vec::new(),
+                free_below: 6e-4,
             },
             "m",
         )
+        .join(" | ")
     }
 
-    /// The reason names what the hold test measured: ends far apart are "unconstrained", ends that came
-    /// most of the way back are "held only loosely", and an untested direction (eigenvalue alone) is
-    /// "unconstrained" without figures.
+    /// The reason names what was measured: ends far apart along a direction as weak as a bare plane's are
+    /// "unconstrained"; ends far apart along one the geometry does constrain (above a bare plane's level)
+    /// are "constrains only weakly", never "unconstrained"; ends that came most of the way back are "held
+    /// only loosely"; an untested direction (eigenvalue alone) is "unconstrained" without figures. Each
+    /// kind gets its own reason.
     #[test]
     fn the_degeneracy_reason_says_what_the_hold_test_measured() {
         // One finest voxel of 7 mm at a 0.5 m radius: 0.80° of yaw.
@@ -252,12 +268,26 @@ mod tests {
         assert!(!loose.contains("unconstrained"), "{loose}");
         let free = reason(vec![yaw(Some((0.007, 0.011)))]);
         assert!(
-            free.contains("unconstrained") && free.contains("1.261° apart"),
+            free.contains("unconstrained")
+                && free.contains("1.261° apart")
+                && free.contains("3.0e-4 of the strongest"),
             "{free}"
         );
-        // One loose and one free direction: the free one decides the wording.
+        // The same ends along a yaw the geometry constrains (ten times a bare plane's strength).
+        let mut held_by_geometry = yaw(Some((0.007, 0.011)));
+        held_by_geometry.relative_strength = 3e-3;
+        let weakly = reason(vec![held_by_geometry]);
+        assert!(
+            weakly.contains("constrains the result only weakly") && weakly.contains("1.261° apart"),
+            "{weakly}"
+        );
+        assert!(!weakly.contains("unconstrained"), "{weakly}");
+        // One loose and one free direction: each is named for what it is.
         let both = reason(vec![yaw(Some((0.007, 0.0011))), yaw(Some((0.007, 0.011)))]);
-        assert!(both.contains("unconstrained"), "{both}");
+        assert!(
+            both.contains("unconstrained") && both.contains("only loosely"),
+            "{both}"
+        );
         let untested = reason(vec![yaw(None)]);
         assert!(
             untested.contains("unconstrained") && !untested.contains("apart"),
