@@ -401,6 +401,7 @@ pub(crate) fn view_depth(
         u,
         v,
         cfg,
+        |x| x / view.block as f64,
         |k| (view.near[k] as f64, view.far[k] as f64),
         |k| block_smooth(view, k, cfg).then(|| block_mid(view, k)),
     )
@@ -412,23 +413,29 @@ fn block_mid(view: &DepthView, k: usize) -> f64 {
     0.5 * (view.near[k] as f64 + view.far[k] as f64)
 }
 
-/// A view with each block's depths and whether it is smooth side by side (8 bytes a block: one cache line
-/// holds eight), for the many lookups of the hand-eye residuals: [`Self::depth`] is [`view_depth`], bit for
-/// bit.
+/// A view with each block's depths and its mid depth when smooth side by side (16 bytes a block), for the
+/// many lookups of the hand-eye residuals and the pose scatter: [`Self::depth`] is [`view_depth`], bit for
+/// bit, with the mid depths computed once and, for blocks of a power-of-two size, the divisions by the
+/// block size done as (exact) multiplications.
 pub(crate) struct SmoothDepth<'a> {
     pub(crate) view: &'a DepthView,
     /// Per block, row-major.
     blocks: Vec<BlockDepth>,
+    /// `1 / block` when the block size is a power of two (then `x * inv == x / block` exactly).
+    inv_block: Option<f64>,
     pub(crate) cfg: &'a ConsistencyConfig,
 }
 
 /// One block of a [`SmoothDepth`].
 #[derive(Clone, Copy)]
 struct BlockDepth {
+    /// Mid depth `(near + far) / 2` in `f64` (metres) when the block is smooth ([`block_smooth`]), NaN
+    /// otherwise.
+    mid: f64,
     /// Nearest depth (metres, 0 = none).
     near: f32,
-    /// Farthest depth (metres), negated when the block is not smooth ([`block_smooth`]).
-    signed_far: f32,
+    /// Farthest depth (metres).
+    far: f32,
 }
 
 impl<'a> SmoothDepth<'a> {
@@ -436,22 +443,40 @@ impl<'a> SmoothDepth<'a> {
     pub(crate) fn new(view: &'a DepthView, cfg: &'a ConsistencyConfig) -> Self {
         let blocks = (0..view.near.len())
             .map(|k| BlockDepth {
-                near: view.near[k],
-                signed_far: if block_smooth(view, k, cfg) {
-                    view.far[k]
+                mid: if block_smooth(view, k, cfg) {
+                    block_mid(view, k)
                 } else {
-                    -view.far[k]
+                    f64::NAN
                 },
+                near: view.near[k],
+                far: view.far[k],
             })
             .collect();
-        SmoothDepth { view, blocks, cfg }
+        let inv_block = view
+            .block
+            .is_power_of_two()
+            .then(|| 1.0 / view.block as f64);
+        SmoothDepth {
+            view,
+            blocks,
+            inv_block,
+            cfg,
+        }
     }
 
     /// [`block_smooth`] of block `k` (row-major).
     #[inline]
     pub(crate) fn smooth(&self, k: usize) -> bool {
-        // A smooth block has depth (far ≥ near > 0); the others' far is stored as −far (−0 included).
-        self.blocks[k].signed_far.is_sign_positive()
+        !self.blocks[k].mid.is_nan()
+    }
+
+    /// `x / block`.
+    #[inline(always)]
+    fn per_block(&self, x: f64) -> f64 {
+        match self.inv_block {
+            Some(inv) => x * inv,
+            None => x / self.view.block as f64,
+        }
     }
 
     /// [`view_depth`] at pixel `(u, v)`.
@@ -462,35 +487,35 @@ impl<'a> SmoothDepth<'a> {
             u,
             v,
             self.cfg,
+            |x| self.per_block(x),
             |k| {
                 let b = &self.blocks[k];
-                (b.near as f64, b.signed_far.abs() as f64)
+                (b.near as f64, b.far as f64)
             },
             |k| {
-                let b = &self.blocks[k];
-                b.signed_far
-                    .is_sign_positive()
-                    .then_some(0.5 * (b.near as f64 + b.signed_far as f64))
+                let m = self.blocks[k].mid;
+                (!m.is_nan()).then_some(m)
             },
         )
     }
 }
 
-/// [`view_depth`] with `near_far(k)`, block `k`'s nearest and farthest depth, and `smooth_mid(k)`, its mid
-/// depth when it is smooth, else `None`.
-#[inline]
+/// [`view_depth`] with `per_block(x)`, `x / block` (pixels to blocks), `near_far(k)`, block `k`'s nearest
+/// and farthest depth, and `smooth_mid(k)`, its mid depth when it is smooth, else `None`.
+#[inline(always)]
 fn depth_with(
     view: &DepthView,
     u: f64,
     v: f64,
     cfg: &ConsistencyConfig,
+    per_block: impl Fn(f64) -> f64,
     near_far: impl Fn(usize) -> (f64, f64),
     smooth_mid: impl Fn(usize) -> Option<f64>,
 ) -> Option<(f64, f64)> {
     let b = view.block as f64;
     let (sw, sh) = (view.size[0] as i64, view.size[1] as i64);
-    let bu = floor_i64((u + 0.5) / b);
-    let bv = floor_i64((v + 0.5) / b);
+    let bu = floor_i64(per_block(u + 0.5));
+    let bv = floor_i64(per_block(v + 0.5));
     if bu < 0 || bv < 0 || bu >= sw || bv >= sh {
         return None;
     }
@@ -499,8 +524,8 @@ fn depth_with(
         return None;
     }
     // Block centres sit at block·b + (b − 1)/2.
-    let fu = (u - (b - 1.0) * 0.5) / b;
-    let fv = (v - (b - 1.0) * 0.5) / b;
+    let fu = per_block(u - (b - 1.0) * 0.5);
+    let fv = per_block(v - (b - 1.0) * 0.5);
     let (iu, iv) = (floor_i64(fu), floor_i64(fv));
     let (au, av) = (fu - iu as f64, fv - iv as f64);
     let mut mids = [0f64; 4];
@@ -1069,7 +1094,8 @@ mod tests {
     }
 
     /// The tabulated lookup is `view_depth` bit for bit, at random pixels (inside, on and beyond the
-    /// edges) of a view with smooth ramps, depth steps (rough blocks) and holes.
+    /// edges) of a view with smooth ramps, depth steps (rough blocks) and holes, for blocks of 2, 3, 4
+    /// and 8 pixels.
     #[test]
     fn smooth_depth_is_view_depth() {
         use crate::camera::DepthImage;
@@ -1087,43 +1113,53 @@ mod tests {
                 img.data[(v * 64 + u) as usize] = d as u16;
             }
         }
-        let view = DepthView::new(&img, &intr, &Isometry3::identity(), 4);
-        let cfg = ConsistencyConfig::default();
-        let table = SmoothDepth::new(&view, &cfg);
-        let (mut smooth, mut rough) = (0, 0);
-        for k in 0..view.near.len() {
-            assert_eq!(table.smooth(k), block_smooth(&view, k, &cfg), "block {k}");
-            if table.smooth(k) {
-                smooth += 1;
-            } else if view.near[k] > 0.0 {
-                rough += 1;
+        // Power-of-two blocks divide by multiplying (exactly); the others divide.
+        for block in [4, 3, 8, 2] {
+            let view = DepthView::new(&img, &intr, &Isometry3::identity(), block);
+            let cfg = ConsistencyConfig::default();
+            let table = SmoothDepth::new(&view, &cfg);
+            let (mut smooth, mut rough) = (0, 0);
+            for k in 0..view.near.len() {
+                assert_eq!(
+                    table.smooth(k),
+                    block_smooth(&view, k, &cfg),
+                    "block {k} of {block}"
+                );
+                if table.smooth(k) {
+                    smooth += 1;
+                } else if view.near[k] > 0.0 {
+                    rough += 1;
+                }
             }
-        }
-        assert!(smooth > 20 && rough > 5, "{smooth} smooth, {rough} rough");
-        let mut s = 3u64;
-        let mut r = move || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
-        let (mut bilinear, mut some) = (0, 0);
-        for _ in 0..20_000 {
-            let (u, v) = (r() * 72.0 - 4.0, r() * 56.0 - 4.0);
-            let want = view_depth(&view, u, v, &cfg);
-            let got = table.depth(u, v);
-            assert_eq!(
-                got.map(|(a, b)| (a.to_bits(), b.to_bits())),
-                want.map(|(a, b)| (a.to_bits(), b.to_bits())),
-                "({u}, {v})"
+            assert!(
+                smooth > 20 * 16 / (block * block) && rough > 5,
+                "{smooth} smooth, {rough} rough, blocks of {block}"
             );
-            some += want.is_some() as usize;
-            bilinear += want.is_some_and(|(a, b)| a == b) as usize;
+            let mut s = 3u64;
+            let mut r = move || {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (s >> 11) as f64 / (1u64 << 53) as f64
+            };
+            let (mut bilinear, mut some) = (0, 0);
+            for _ in 0..20_000 {
+                let (u, v) = (r() * 72.0 - 4.0, r() * 56.0 - 4.0);
+                let want = view_depth(&view, u, v, &cfg);
+                let got = table.depth(u, v);
+                assert_eq!(
+                    got.map(|(a, b)| (a.to_bits(), b.to_bits())),
+                    want.map(|(a, b)| (a.to_bits(), b.to_bits())),
+                    "({u}, {v}), blocks of {block}"
+                );
+                some += want.is_some() as usize;
+                bilinear += want.is_some_and(|(a, b)| a == b) as usize;
+            }
+            assert!(
+                some > 5000 && bilinear > 2000,
+                "{some} depths, {bilinear} bilinear, blocks of {block}"
+            );
         }
-        assert!(
-            some > 5000 && bilinear > 2000,
-            "{some} depths, {bilinear} bilinear"
-        );
     }
 
     fn check(robot: &CellRobot, cfg: &ConsistencyConfig) -> RobotConsistency {

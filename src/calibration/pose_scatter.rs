@@ -32,6 +32,7 @@ use crate::calibration::uncertainty::adjoint;
 use crate::camera::DepthView;
 use crate::cell::CellRobot;
 use crate::error::Result;
+use crate::geometry::outer::OuterSum6;
 use crate::registration::RobustKernel;
 use crate::stats::median;
 use nalgebra::{
@@ -243,7 +244,7 @@ fn normal_equations(
                     intr: problem.intr,
                     size,
                 };
-                let (mut h, mut g, mut k) = (Matrix6::zeros(), Vector6::zeros(), 0usize);
+                let (mut h, mut g, mut k) = (OuterSum6::default(), Vector6::zeros(), 0usize);
                 let mut wrong_side = 0usize;
                 for (m, (p, np)) in fp.points.iter().zip(&fp.normals).enumerate() {
                     let q = a * nalgebra::Point3::from(*p);
@@ -264,7 +265,7 @@ fn normal_equations(
                     let jw = pc.cross(&big_n);
                     let row = Vector6::new(jw.x, jw.y, jw.z, big_n.x, big_n.y, big_n.z);
                     let ws = w / (sigma * sigma);
-                    h += row * row.transpose() * ws;
+                    h.add(&row, ws);
                     g += row * (res * ws);
                     k += 1;
                     stats.chi2 += w * (res / sigma).powi(2);
@@ -272,7 +273,7 @@ fn normal_equations(
                     used[m] = true;
                 }
                 if k > 0 {
-                    out.push((j, h, g, k));
+                    out.push((j, h.matrix(), g, k));
                 }
                 stats.tests += k;
             }

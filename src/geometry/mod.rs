@@ -1,6 +1,7 @@
 //! Geometry: the point cloud type, rigid transforms, pose errors and formats, random numbers.
 
 pub mod cloud;
+pub mod outer;
 pub mod plane;
 pub mod pose;
 pub mod rng;

@@ -12,6 +12,7 @@ use crate::calibration::consistency::{
     sample_view, splitmix, ConsistencyConfig, Sample, SmoothDepth,
 };
 use crate::camera::{DepthView, Intrinsics};
+use crate::geometry::outer::OuterSum6;
 use crate::registration::RobustKernel;
 use nalgebra::{Isometry3, Matrix3, Matrix6, RowVector6, Vector3, Vector6};
 use rayon::prelude::*;
@@ -418,6 +419,7 @@ impl Problem<'_> {
                     return s;
                 }
                 let mut used = vec![false; fp.points.len()];
+                let mut h = OuterSum6::default();
                 for j in (0..n).filter(|&j| j != i) {
                     let t = x_inv * self.t_base_ee[j].inverse() * self.t_base_ee[i] * x;
                     let r = *t.rotation.to_rotation_matrix().matrix();
@@ -437,7 +439,7 @@ impl Problem<'_> {
                         };
                         let jrow = hand_eye_row(&nj, &q, p, &r, &r_minus_i);
                         let ws = wk / (sigma * sigma);
-                        s.h += jrow.transpose() * jrow * ws;
+                        h.add(&jrow.transpose(), ws);
                         s.g += jrow.transpose() * (res * ws);
                         s.chi2 += wk * (res / sigma).powi(2);
                         s.weight += wk;
@@ -445,6 +447,7 @@ impl Problem<'_> {
                         used[k] = true;
                     }
                 }
+                s.h = h.matrix();
                 s.samples_used = used.iter().filter(|&&u| u).count();
                 s
             })
