@@ -42,6 +42,8 @@ const EMPTY_NODE: Node = Node {
 struct Tree {
     nodes: Vec<Node>,
     items: Vec<([f32; 3], u32)>,
+    /// `slot[id]`: where point `id` lies in `items`.
+    slot: Vec<u32>,
 }
 
 /// Squared distance in `f32`, summed x, y, z.
@@ -92,7 +94,11 @@ impl Tree {
             .collect();
         let mut nodes = vec![EMPTY_NODE; subtree_nodes(points.len())];
         Self::build_rec(&mut items, 0, &mut nodes, 0);
-        Tree { nodes, items }
+        let mut slot = vec![0u32; items.len()];
+        for (k, (_, id)) in items.iter().enumerate() {
+            slot[*id as usize] = k as u32;
+        }
+        Tree { nodes, items, slot }
     }
 
     /// Fills `nodes` (exactly the subtree's, its root first, node indices from `first`) with the subtree
@@ -203,9 +209,17 @@ impl Tree {
     /// smaller index.
     #[inline]
     fn nearest(&self, q: &[f32; 3], max_d2: f32) -> Option<(u32, f32)> {
-        let mut best = (u32::MAX, max_d2);
-        let mut found = false;
-        let best_ref = std::cell::Cell::new(max_d2);
+        self.nearest_from(q, (u32::MAX, max_d2), false)
+    }
+
+    /// [`Self::nearest`] starting from a candidate already found, `start` = `(id, d²)` when `found`
+    /// (then `d² ≤ max_d2`), else `(u32::MAX, max_d2)`: the search only visits boxes within the
+    /// candidate's distance, and ends with the same answer.
+    #[inline]
+    fn nearest_from(&self, q: &[f32; 3], start: (u32, f32), found: bool) -> Option<(u32, f32)> {
+        let mut best = start;
+        let mut found = found;
+        let best_ref = std::cell::Cell::new(start.1);
         self.search(
             q,
             || best_ref.get(),
@@ -364,6 +378,35 @@ impl KdIndex {
         Some((i as usize, d))
     }
 
+    /// [`KdIndex::nearest_within`] given a guess, point `hint` (an index into the indexed points, e.g. the
+    /// answer for a nearby query): the same answer, found faster when the guess is close to it (ICP's
+    /// correspondences from one iteration to the next). A hint out of range or beyond `max_d2` is
+    /// ignored.
+    #[inline]
+    pub fn nearest_within_hinted(
+        &self,
+        p: &[f32; 3],
+        max_d2: f32,
+        hint: usize,
+    ) -> Option<(usize, f32)> {
+        let tree = self.tree.as_ref()?;
+        let start = tree
+            .slot
+            .get(hint)
+            .map(|&k| {
+                (
+                    tree.items[k as usize].1,
+                    dist2(p, &tree.items[k as usize].0),
+                )
+            })
+            .filter(|&(_, d)| d <= max_d2);
+        let (i, d) = match start {
+            Some(s) => tree.nearest_from(p, s, true)?,
+            None => tree.nearest(p, max_d2)?,
+        };
+        Some((i as usize, d))
+    }
+
     /// Whether any point lies closer than `max_d2` (a **squared** distance, exclusive) to `p`: the same
     /// answer as `nearest(p).is_some_and(|(_, d)| d < max_d2)`, but the search stops at the first such
     /// point instead of looking for the nearest. What counting inliers asks.
@@ -494,6 +537,12 @@ mod tests {
             let r2 = 0.01f32;
             let want = (b[0].1 <= r2).then_some(b[0]);
             assert_eq!(idx.nearest_within(&q, r2), want);
+            // A hint anywhere (the answer, a near or far point, a duplicate, out of range) changes
+            // nothing.
+            for hint in [b[0].0, b[1].0, b[5].0, b[b.len() - 1].0, 0, 3549, pts.len()] {
+                assert_eq!(idx.nearest_within_hinted(&q, r2, hint), want, "hint {hint}");
+                assert_eq!(idx.nearest_within_hinted(&q, 4.0, hint), Some(b[0]));
+            }
             // Strictly closer: at, just above and just below the nearest distance, and at r2.
             for t in [r2, b[0].1, b[0].1.next_up(), b[0].1.next_down(), 0.0] {
                 assert_eq!(idx.any_closer_than(&q, t), b[0].1 < t, "{t}");
@@ -522,7 +571,16 @@ mod tests {
                     .collect::<Vec<_>>()
             );
         }
+        // On a duplicated point, hinted at its later copy: the earlier index wins the tie.
+        for k in 0..50 {
+            let got = idx.nearest_within_hinted(&pts[k], 0.01, 3500 + k);
+            assert_eq!(got, brute(&pts, &pts[k]).first().copied());
+            assert_eq!(got.map(|h| h.0), Some(k));
+        }
         assert!(KdIndex::new(&[]).nearest(&[0.0; 3]).is_none());
+        assert!(KdIndex::new(&[])
+            .nearest_within_hinted(&[0.0; 3], 1.0, 0)
+            .is_none());
         assert!(!KdIndex::new(&[]).any_closer_than(&[0.0; 3], f32::INFINITY));
         // Exact duplicates: a query on a point is at distance 0, not closer than 0.
         assert!(!idx.any_closer_than(&pts[0], 0.0));

@@ -524,8 +524,11 @@ impl<'a> Problem<'a> {
     }
 
     /// Every source point's nearest target point within the distance limit under `t` that passes the
-    /// normal gate, in source order.
-    fn correspondences(&self, t: &Isometry3<f64>) -> Vec<Pair> {
+    /// normal gate, in source order. `hints` (one per source point) holds each point's nearest target
+    /// point of the previous call (`u32::MAX` for none) and is updated: the search starts from it, with
+    /// the same answer.
+    fn correspondences(&self, t: &Isometry3<f64>, hints: &mut [u32]) -> Vec<Pair> {
+        debug_assert_eq!(hints.len(), self.source.len());
         let rot32: [[f32; 3]; 3] = {
             let m = t.rotation.to_rotation_matrix();
             std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)] as f32))
@@ -533,11 +536,14 @@ impl<'a> Problem<'a> {
         let (maxd2, sided) = (self.maxd2, self.cfg.sided);
         self.source
             .par_iter()
+            .zip(hints.par_iter_mut())
             .enumerate()
-            .filter_map(|(i, p)| {
+            .filter_map(|(i, (p, hint))| {
                 let pw = transform_point(t, p);
                 // Pairs beyond the distance limit are never used: a bounded search skips them early.
-                let (j, d2) = self.index.nearest_within(&pw, maxd2)?;
+                let found = self.index.nearest_within_hinted(&pw, maxd2, *hint as usize);
+                *hint = found.map_or(u32::MAX, |(j, _)| j as u32);
+                let (j, d2) = found?;
                 if let Some((cmin, ns, nt)) = self.gate {
                     let n = ns[i];
                     let m = &rot32;
@@ -701,7 +707,7 @@ pub fn reassociated_information(
 ) -> Result<Matrix6<f64>> {
     let problem = Problem::new(source, target, lazy, target_index, cfg)?;
     let kept_at = |pose: &Isometry3<f64>| {
-        let mut pairs = problem.correspondences(pose);
+        let mut pairs = problem.correspondences(pose, &mut vec![u32::MAX; problem.source.len()]);
         let (keep, _) = problem.sort_and_trim(&mut pairs);
         pairs.truncate(keep);
         pairs
@@ -855,9 +861,11 @@ fn icp_with(
     let mut carried_ms = 0.0;
     // The pose and the sorted pairs (with the kept count) of the record in `last`.
     let mut last_kept: (Isometry3<f64>, Vec<Pair>, usize) = (t, Vec::new(), 0);
+    // Each source point's nearest target point of the last iteration, where its search starts.
+    let mut hints = vec![u32::MAX; problem.source.len()];
     for it in 0..=cfg.max_iterations {
         let it_start = std::time::Instant::now();
-        let mut pairs = problem.correspondences(&t);
+        let mut pairs = problem.correspondences(&t, &mut hints);
         if let Some(a) = accel.as_mut() {
             let energy = truncated_energy(&pairs, n_source, problem.maxd2);
             if let Some((plain, before)) = a.proposal.take() {
