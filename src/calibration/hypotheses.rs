@@ -33,7 +33,9 @@ use crate::error::Result;
 use crate::geometry::cloud::{to_p64, PointCloud};
 use crate::geometry::transform::pose_error;
 use crate::registration::pipeline::Ambiguity;
-use crate::registration::{register, RegisterConfig, Registration};
+use crate::registration::{
+    register_request, PreparedLevels, RegisterConfig, RegisterRequest, Registration,
+};
 use nalgebra::Isometry3;
 use rayon::prelude::*;
 
@@ -209,12 +211,17 @@ pub fn refine_and_judge(
     rcfg: &RegisterConfig,
     body: &VisibilityConfig,
     test: Option<&FreeSpaceTest>,
+    prepared: &PreparedLevels,
 ) -> Result<Vec<Judged>> {
     let refined: Vec<Result<Judged>> = starts
         .par_iter()
         .map(|start| {
             let (reference, other) = without_robot_bodies(fused, start, body);
-            let registration = register(&other, &reference, Some(start), rcfg)?;
+            let registration = register_request(RegisterRequest {
+                initial: Some(start),
+                prepared: Some(prepared),
+                ..RegisterRequest::new(&other, &reference, rcfg)
+            })?;
             let free_space = test.map(|t| t.check(&registration.transform));
             Ok(Judged {
                 start: *start,
@@ -408,10 +415,20 @@ mod tests {
         let far = Isometry3::translation(50.0, 0.0, 0.0);
         let near = Isometry3::translation(0.005, -0.003, 0.002);
         let rcfg = RegisterConfig::default();
-        let judged = refine_and_judge(&fused, &[far, near], &rcfg, &body, None).unwrap();
+        let judged = refine_and_judge(
+            &fused,
+            &[far, near],
+            &rcfg,
+            &body,
+            None,
+            &PreparedLevels::new(),
+        )
+        .unwrap();
         assert_eq!(judged.len(), 1);
         assert_eq!(judged[0].start, near);
         assert!(judged[0].registration.transform.translation.vector.norm() < 2e-3);
-        assert!(refine_and_judge(&fused, &[far], &rcfg, &body, None).is_err());
+        assert!(
+            refine_and_judge(&fused, &[far], &rcfg, &body, None, &PreparedLevels::new()).is_err()
+        );
     }
 }

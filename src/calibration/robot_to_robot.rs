@@ -16,8 +16,8 @@ use crate::error::Result;
 use crate::geometry::transform::pose_error;
 use crate::registration::pipeline::recheck_weak_directions;
 use crate::registration::quality::Degeneracy;
-use crate::registration::RegisterConfig;
 use crate::registration::Trust;
+use crate::registration::{PreparedLevels, RegisterConfig};
 use crate::timing::StageTimer;
 use nalgebra::{Isometry3, Matrix6};
 
@@ -384,7 +384,16 @@ pub fn refine_pair(
         .chain(out.initial.alternatives.iter().copied())
         .collect();
     let test = FreeSpaceTest::new(fused, &cfg.visibility);
-    let mut judged = refine_and_judge(fused, &starts, &rcfg, &cfg.visibility, test.as_ref())?;
+    // The hypotheses' clouds are often the very same points: their levels are prepared once.
+    let prepared = PreparedLevels::new();
+    let mut judged = refine_and_judge(
+        fused,
+        &starts,
+        &rcfg,
+        &cfg.visibility,
+        test.as_ref(),
+        &prepared,
+    )?;
     let summaries: Vec<_> = judged
         .iter()
         .map(|j| j.summary(cfg.visibility.choice_penalty_scale))
@@ -419,7 +428,14 @@ pub fn refine_pair(
     // unconverged (and untrusted).
     if !chosen.registration.converged {
         let from = chosen.registration.transform;
-        let again = refine_and_judge(fused, &[from], &rcfg, &cfg.visibility, test.as_ref())?;
+        let again = refine_and_judge(
+            fused,
+            &[from],
+            &rcfg,
+            &cfg.visibility,
+            test.as_ref(),
+            &prepared,
+        )?;
         if let Some(j) = again.into_iter().next() {
             let (r, m) = pose_error(&j.registration.transform, &from);
             log::info!(
@@ -440,7 +456,7 @@ pub fn refine_pair(
             degeneracy_threshold: cfg.register.degeneracy_threshold,
             ..rcfg.clone()
         };
-        recheck_weak_directions(&mut reg, other, reference, &hold)?;
+        recheck_weak_directions(&mut reg, other, reference, &hold, Some(&prepared))?;
     }
     timer.lap("refine");
     out.warnings = reg.warnings.clone();

@@ -22,7 +22,7 @@ pub mod trust;
 
 pub use pipeline::{
     register, register_request, register_with_prior, register_with_progress, IcpLevelTrace,
-    RegisterConfig, RegisterRequest, Registration,
+    PreparedLevels, RegisterConfig, RegisterRequest, Registration,
 };
 pub use trust::{assess_registration, Trust, TrustConfig};
 pub use verify::HypothesisPrior;

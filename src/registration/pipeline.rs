@@ -29,6 +29,7 @@ use crate::timing::{StageRecord, StageTimer};
 use nalgebra::{Isometry3, Matrix6, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Everything `register` can be told. Scale-dependent values are multiples of the voxel size, which is
@@ -395,6 +396,187 @@ impl Level {
     }
 }
 
+/// Levels ([`prepare_level`]) and point spacings already computed, for registrations of the same clouds
+/// to share: `calibrate` refines several hypotheses whose clouds are often the very same points (the
+/// other robot's body cut out under each), and the hold test prepares the finest level again. An entry is
+/// reused only for a cloud equal bit for bit and the same settings, so results are those of computing it
+/// afresh. Safe to share between threads: two registrations that miss at once both compute it (never
+/// waiting on each other, which inside rayon could deadlock), the first stored is kept.
+#[derive(Default)]
+pub struct PreparedLevels {
+    levels: std::sync::Mutex<Vec<(LevelKey, Arc<Level>)>>,
+    spacings: std::sync::Mutex<Vec<(CloudKey, f64)>>,
+}
+
+/// Entries kept at most (oldest dropped first): a pyramid's levels for a few distinct clouds.
+const PREPARED_KEPT: usize = 24;
+
+/// A cloud's positions and normals, compared bit for bit (`hash` first).
+#[derive(Clone)]
+struct CloudKey {
+    hash: u64,
+    points: Arc<Vec<[f32; 3]>>,
+    normals: Option<Arc<Vec<[f32; 3]>>>,
+}
+
+impl CloudKey {
+    fn new(c: &PointCloud) -> Self {
+        let mut h = 0xcbf2_9ce4_8422_2325u64;
+        let mut mix = |v: &[[f32; 3]]| {
+            for p in v {
+                for x in p {
+                    h = (h ^ x.to_bits() as u64).wrapping_mul(0x0100_0000_01b3);
+                }
+            }
+        };
+        mix(&c.points);
+        if let Some(n) = &c.normals {
+            mix(n);
+        }
+        CloudKey {
+            hash: h,
+            points: Arc::new(c.points.clone()),
+            normals: c.normals.clone().map(Arc::new),
+        }
+    }
+
+    fn same(&self, o: &CloudKey) -> bool {
+        let bits = |a: &[[f32; 3]], b: &[[f32; 3]]| {
+            a.len() == b.len()
+                && a.iter()
+                    .zip(b)
+                    .all(|(x, y)| (0..3).all(|k| x[k].to_bits() == y[k].to_bits()))
+        };
+        self.hash == o.hash
+            && bits(&self.points, &o.points)
+            && match (&self.normals, &o.normals) {
+                (None, None) => true,
+                (Some(a), Some(b)) => bits(a, b),
+                _ => false,
+            }
+    }
+}
+
+/// What a prepared level depends on: the cloud, the voxel and the settings [`prepare_level`] reads.
+#[derive(Clone)]
+struct LevelKey {
+    cloud: CloudKey,
+    voxel: u64,
+    for_features: bool,
+    covariances: bool,
+    sided: bool,
+    normal_radius_voxels: u64,
+    normal_max_neighbors: usize,
+    orientation: Option<Orientation>,
+    fpfh_radius_voxels: u64,
+}
+
+impl LevelKey {
+    fn same(&self, o: &LevelKey) -> bool {
+        self.voxel == o.voxel
+            && self.for_features == o.for_features
+            && self.covariances == o.covariances
+            && self.sided == o.sided
+            && self.normal_radius_voxels == o.normal_radius_voxels
+            && self.normal_max_neighbors == o.normal_max_neighbors
+            && self.orientation == o.orientation
+            && self.fpfh_radius_voxels == o.fpfh_radius_voxels
+            && self.cloud.same(&o.cloud)
+    }
+}
+
+impl PreparedLevels {
+    /// An empty store.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// [`prepare_level`] of `cloud`, from the store when it holds it.
+    fn level(
+        &self,
+        cloud: &PointCloud,
+        voxel: f64,
+        cfg: &RegisterConfig,
+        for_features: bool,
+        covariances: bool,
+    ) -> Result<Arc<Level>> {
+        let key = LevelKey {
+            cloud: CloudKey::new(cloud),
+            voxel: voxel.to_bits(),
+            for_features,
+            covariances,
+            sided: cfg.sided,
+            normal_radius_voxels: cfg.normal_radius_voxels.to_bits(),
+            normal_max_neighbors: cfg.normal_max_neighbors,
+            orientation: cfg.orientation,
+            fpfh_radius_voxels: cfg.fpfh_radius_voxels.to_bits(),
+        };
+        let held = self
+            .levels
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter()
+            .find(|(k, _)| k.same(&key))
+            .map(|(_, l)| l.clone());
+        if let Some(l) = held {
+            return Ok(l);
+        }
+        let level = Arc::new(prepare_level(cloud, voxel, cfg, for_features, covariances)?);
+        let mut kept = self.levels.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((_, l)) = kept.iter().find(|(k, _)| k.same(&key)) {
+            return Ok(l.clone());
+        }
+        if kept.len() >= PREPARED_KEPT {
+            kept.remove(0);
+        }
+        kept.push((key, level.clone()));
+        Ok(level)
+    }
+
+    /// [`estimate_spacing`] of `cloud`, from the store when it holds it.
+    fn spacing(&self, cloud: &PointCloud) -> Result<f64> {
+        let key = CloudKey::new(cloud);
+        let held = self
+            .spacings
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter()
+            .find(|(k, _)| k.same(&key))
+            .map(|(_, d)| *d);
+        if let Some(d) = held {
+            return Ok(d);
+        }
+        let d = estimate_spacing(&cloud.points)?;
+        let mut kept = self.spacings.lock().unwrap_or_else(|e| e.into_inner());
+        if kept.len() >= PREPARED_KEPT {
+            kept.remove(0);
+        }
+        kept.push((key, d));
+        Ok(d)
+    }
+}
+
+/// [`prepare_level`] through `memo` when given.
+fn prepared(
+    memo: Option<&PreparedLevels>,
+    cloud: &PointCloud,
+    voxel: f64,
+    cfg: &RegisterConfig,
+    for_features: bool,
+    covariances: bool,
+) -> Result<Arc<Level>> {
+    match memo {
+        Some(m) => m.level(cloud, voxel, cfg, for_features, covariances),
+        None => Ok(Arc::new(prepare_level(
+            cloud,
+            voxel,
+            cfg,
+            for_features,
+            covariances,
+        )?)),
+    }
+}
+
 /// Downsamples, indexes and estimates normals (and, with `covariances`, GICP covariances); orients the
 /// normals only when FPFH will use them (point-to-plane ICP does not care about their sign, and the
 /// orientation's neighbourhood search is not free).
@@ -482,6 +664,9 @@ pub struct RegisterRequest<'a> {
     /// a cloud is an error, clouds whose extents differ more than 20x give a warning, a reason when the
     /// result is not trusted and the context of an error.
     pub check_extents: bool,
+    /// Prepared levels and spacings to share with other registrations of the same clouds (default none:
+    /// each is computed here). Results are the same either way.
+    pub prepared: Option<&'a PreparedLevels>,
 }
 
 impl<'a> RegisterRequest<'a> {
@@ -495,6 +680,7 @@ impl<'a> RegisterRequest<'a> {
             prior: None,
             progress: None,
             check_extents: true,
+            prepared: None,
         }
     }
 }
@@ -571,6 +757,7 @@ pub fn register_request(req: RegisterRequest) -> Result<Registration> {
             req.config,
             progress,
             req.prior,
+            req.prepared,
         );
     }
     let notes = check_extents(req.source, req.target, req.config.voxel)?;
@@ -582,6 +769,7 @@ pub fn register_request(req: RegisterRequest) -> Result<Registration> {
         req.config,
         progress,
         req.prior,
+        req.prepared,
     )
     .map_err(|e| match context {
         Some(c) => Error::InvalidInput(format!("{c}: {e}")),
@@ -612,6 +800,7 @@ fn run_pipeline(
     cfg: &RegisterConfig,
     progress: &mut dyn FnMut(&str),
     prior: Option<HypothesisPrior>,
+    memo: Option<&PreparedLevels>,
 ) -> Result<Registration> {
     let mut timer = StageTimer::new();
     progress("measuring scale");
@@ -620,13 +809,13 @@ fn run_pipeline(
         target: tgt,
         mut warnings,
     } = clean(source, target, cfg)?;
-    let Scale { spacing, voxel } = scale(&src, &tgt, cfg)?;
+    let Scale { spacing, voxel } = scale(&src, &tgt, cfg, memo)?;
     timer.lap_counted("scale", Some(src.len() + tgt.len()), None);
 
     progress("downsampling, normals");
     let gicp = cfg.icp.factor == IcpFactor::Gicp;
-    let s0 = prepare_level(&src, voxel, cfg, init.is_none(), gicp)?;
-    let t0 = prepare_level(&tgt, voxel, cfg, init.is_none(), gicp)?;
+    let s0 = prepared(memo, &src, voxel, cfg, init.is_none(), gicp)?;
+    let t0 = prepared(memo, &tgt, voxel, cfg, init.is_none(), gicp)?;
     timer.lap_counted(
         "downsample_normals",
         Some(src.len() + tgt.len()),
@@ -654,7 +843,7 @@ fn run_pipeline(
         }
     };
 
-    let pyramid = icp_pyramid(&src, &tgt, &s0, &t0, &initial, voxel, spacing, cfg)?;
+    let pyramid = icp_pyramid(&src, &tgt, &s0, &t0, &initial, voxel, spacing, cfg, memo)?;
     timer.lap_counted(
         "icp",
         Some(
@@ -676,6 +865,7 @@ fn run_pipeline(
             &pyramid.transform,
             pyramid.finest_voxel,
             cfg,
+            memo,
         )?,
         ..pyramid
     };
@@ -759,11 +949,17 @@ struct Scale {
 /// Stage 2. Takes the cleaned clouds; gives their median point spacings and the global voxel (cloud
 /// units): [`RegisterConfig::voxel`] when given, else the geometric mean of the voxels that bring each
 /// cloud to [`ScaleConfig::target_points`], at least `min_voxel_per_spacing` spacings.
-fn scale(src: &PointCloud, tgt: &PointCloud, cfg: &RegisterConfig) -> Result<Scale> {
-    let spacing = [
-        estimate_spacing(&src.points)?,
-        estimate_spacing(&tgt.points)?,
-    ];
+fn scale(
+    src: &PointCloud,
+    tgt: &PointCloud,
+    cfg: &RegisterConfig,
+    memo: Option<&PreparedLevels>,
+) -> Result<Scale> {
+    let spacing_of = |c: &PointCloud| match memo {
+        Some(m) => m.spacing(c),
+        None => estimate_spacing(&c.points),
+    };
+    let spacing = [spacing_of(src)?, spacing_of(tgt)?];
     let min_voxel = cfg.scale.min_voxel_per_spacing * spacing[0].max(spacing[1]);
     let voxel = match cfg.voxel {
         Some(v) if v > 0.0 && v.is_finite() => v,
@@ -1040,6 +1236,7 @@ fn icp_pyramid(
     voxel: f64,
     spacing: [f64; 2],
     cfg: &RegisterConfig,
+    memo: Option<&PreparedLevels>,
 ) -> Result<Pyramid> {
     let finest = cfg.icp_min_voxel_spacings * spacing[0].max(spacing[1]);
     let mut t = *initial;
@@ -1065,11 +1262,11 @@ fn icp_pyramid(
         let (sl, tl) = if level == 0 {
             (None, None)
         } else {
-            let (sl, tl) = icp_level_clouds(src, tgt, v, cfg, lazy)?;
+            let (sl, tl) = icp_level_clouds(src, tgt, v, cfg, lazy, memo)?;
             (Some(sl), Some(tl))
         };
-        let slev = sl.as_ref().unwrap_or(s0);
-        let tlev = tl.as_ref().unwrap_or(t0);
+        let slev: &Level = sl.as_deref().unwrap_or(s0);
+        let tlev: &Level = tl.as_deref().unwrap_or(t0);
         let sub = subsample_source(slev, cfg.icp_max_source_points);
         let icfg = level_icp_config(cfg, v);
         let lazy = lazy.then(|| {
@@ -1197,11 +1394,12 @@ fn confirm_weak_directions(
     answer: &Isometry3<f64>,
     voxel: f64,
     cfg: &RegisterConfig,
+    memo: Option<&PreparedLevels>,
 ) -> Result<Degeneracy> {
     if deg.weak.is_empty() || cfg.degeneracy_slide_voxels <= 0.0 {
         return Ok(deg);
     }
-    let (s_level, t0) = icp_level_clouds(src, tgt, voxel, cfg, false)?;
+    let (s_level, t0) = icp_level_clouds(src, tgt, voxel, cfg, false, memo)?;
     let sub = subsample_source(&s_level, cfg.icp_max_source_points);
     let icfg = level_icp_config(cfg, voxel);
     let source = IcpCloud {
@@ -1262,28 +1460,29 @@ fn icp_level_clouds(
     voxel: f64,
     cfg: &RegisterConfig,
     lazy_normals: bool,
-) -> Result<(Level, Level)> {
+    memo: Option<&PreparedLevels>,
+) -> Result<(Arc<Level>, Arc<Level>)> {
     let gicp = cfg.icp.factor == IcpFactor::Gicp;
     let sl = if gicp || cfg.icp.max_normal_angle_deg.is_some() || cfg.sided {
-        prepare_level(src, voxel, cfg, false, gicp)?
+        prepared(memo, src, voxel, cfg, false, gicp)?
     } else {
         let cloud = voxel_downsample(src, voxel)?;
-        Level {
+        Arc::new(Level {
             index: KdIndex::new(&[]),
             cloud,
             covariances: None,
-        }
+        })
     };
     let tl = if lazy_normals {
         let mut cloud = voxel_downsample(tgt, voxel)?;
         cloud.normals = None;
-        Level {
+        Arc::new(Level {
             index: KdIndex::new(&cloud.points),
             cloud,
             covariances: None,
-        }
+        })
     } else {
-        prepare_level(tgt, voxel, cfg, false, gicp)?
+        prepared(memo, tgt, voxel, cfg, false, gicp)?
     };
     Ok((sl, tl))
 }
@@ -1417,12 +1616,13 @@ const DEGENERACY_WARNING: &str = "the geometry";
 /// alone), then updates its degeneracy, its warnings and its trust verdict; `cfg`'s
 /// [`RegisterConfig::degeneracy_threshold`] says which weak directions the geometry leaves free
 /// ([`Degeneracy::free_below`]). For callers that refine many hypotheses and need the test only for the
-/// one they keep (`calibrate`).
+/// one they keep (`calibrate`), with the levels prepared for that refinement when given (`prepared`).
 pub fn recheck_weak_directions(
     reg: &mut Registration,
     mut src: PointCloud,
     mut tgt: PointCloud,
     cfg: &RegisterConfig,
+    prepared: Option<&PreparedLevels>,
 ) -> Result<()> {
     if !reg.degeneracy.is_degenerate() {
         return Ok(());
@@ -1439,6 +1639,7 @@ pub fn recheck_weak_directions(
         &reg.transform,
         reg.finest_voxel,
         cfg,
+        prepared,
     )?;
     reg.warnings.retain(|w| !w.starts_with(DEGENERACY_WARNING));
     reg.warnings.extend(degeneracy_warning(&reg.degeneracy));
@@ -1695,6 +1896,54 @@ mod tests {
             ..RegisterConfig::default()
         };
         cfg.validate().unwrap();
+    }
+
+    /// Registrations that share prepared levels give, bit for bit, what each gives alone (GICP, so the
+    /// covariances are shared too, and with the hold test, which prepares the finest level again); the
+    /// second of two equal registrations prepares nothing, and a cloud one point away from a stored one
+    /// is not served its levels.
+    #[test]
+    fn shared_prepared_levels_change_nothing() {
+        let truth = Isometry3::new(Vector3::new(0.03, -0.02, 0.01), Vector3::z() * 0.02);
+        let start = Isometry3::new(Vector3::new(0.035, -0.015, 0.01), Vector3::z() * 0.025);
+        let cfg = RegisterConfig {
+            icp: IcpConfig {
+                factor: IcpFactor::Gicp,
+                ..IcpConfig::default()
+            },
+            sided: false,
+            degeneracy_test_threshold: 0.5,
+            ..RegisterConfig::default()
+        };
+        let target = floor_scene(true, 1);
+        let source = floor_scene(true, 2).transformed(&truth.inverse());
+        let mut moved = source.clone();
+        moved.points[17][2] += 1e-3;
+        let bits = |r: &Registration| r.transform.to_homogeneous().map(|x| x.to_bits());
+        let shared = PreparedLevels::new();
+        let with = |s: &PointCloud| {
+            register_request(RegisterRequest {
+                initial: Some(&start),
+                prepared: Some(&shared),
+                ..RegisterRequest::new(s, &target, &cfg)
+            })
+            .unwrap()
+        };
+        let entries = || shared.levels.lock().unwrap().len();
+        let alone = register(&source, &target, Some(&start), &cfg).unwrap();
+        let first = with(&source);
+        let kept = entries();
+        assert!(kept >= 4, "{kept} levels kept");
+        let second = with(&source);
+        assert_eq!(entries(), kept, "the second run prepared a level");
+        assert_eq!(bits(&first), bits(&alone));
+        assert_eq!(bits(&second), bits(&alone));
+        assert_eq!(first.degeneracy.held.len(), alone.degeneracy.held.len());
+        assert_eq!(first.covariance, alone.covariance);
+        let other = with(&moved);
+        assert!(entries() > kept, "the moved cloud was served stored levels");
+        let other_alone = register(&moved, &target, Some(&start), &cfg).unwrap();
+        assert_eq!(bits(&other), bits(&other_alone));
     }
 
     /// The hold test keeps a floor's yaw when boxes stand on it and reports it on the bare floor: every
