@@ -404,52 +404,91 @@ impl Level {
 /// waiting on each other, which inside rayon could deadlock), the first stored is kept.
 #[derive(Default)]
 pub struct PreparedLevels {
-    levels: std::sync::Mutex<Vec<(LevelKey, Arc<Level>)>>,
-    spacings: std::sync::Mutex<Vec<(CloudKey, f64)>>,
+    levels: Kept<(CloudKey, LevelSettings), Arc<Level>>,
+    spacings: Kept<CloudKey, f64>,
 }
 
-/// Entries kept at most (oldest dropped first): a pyramid's levels for a few distinct clouds.
+/// Entries kept at most per kind (oldest dropped first): a pyramid's levels for a few distinct clouds.
 const PREPARED_KEPT: usize = 24;
 
-/// A cloud's positions and normals, compared bit for bit (`hash` first).
-#[derive(Clone)]
+/// A small store of computed values by key, shared between threads.
+struct Kept<K, V> {
+    entries: std::sync::Mutex<Vec<(K, V)>>,
+}
+
+impl<K, V> Default for Kept<K, V> {
+    fn default() -> Self {
+        Kept {
+            entries: std::sync::Mutex::new(Vec::new()),
+        }
+    }
+}
+
+impl<K, V: Clone> Kept<K, V> {
+    /// The value of the first entry whose key `hit` accepts; else `compute()`, stored under `key()`
+    /// (unless another thread stored one meanwhile, which is then returned).
+    fn get_or_compute(
+        &self,
+        hit: impl Fn(&K) -> bool,
+        key: impl FnOnce() -> K,
+        compute: impl FnOnce() -> Result<V>,
+    ) -> Result<V> {
+        let lock = || self.entries.lock().unwrap_or_else(|e| e.into_inner());
+        let find = |e: &[(K, V)]| e.iter().find(|(k, _)| hit(k)).map(|(_, v)| v.clone());
+        if let Some(v) = find(&lock()) {
+            return Ok(v);
+        }
+        let v = compute()?;
+        let mut kept = lock();
+        if let Some(held) = find(&kept) {
+            return Ok(held);
+        }
+        if kept.len() >= PREPARED_KEPT {
+            kept.remove(0);
+        }
+        kept.push((key(), v.clone()));
+        Ok(v)
+    }
+}
+
+/// A stored cloud's positions and normals (copied only when an entry is stored), and their hash.
 struct CloudKey {
     hash: u64,
-    points: Arc<Vec<[f32; 3]>>,
-    normals: Option<Arc<Vec<[f32; 3]>>>,
+    points: Vec<[f32; 3]>,
+    normals: Option<Vec<[f32; 3]>>,
 }
 
 impl CloudKey {
-    fn new(c: &PointCloud) -> Self {
+    /// FNV-1a over the bits of `c`'s positions, then its normals.
+    fn hash_of(c: &PointCloud) -> u64 {
         let mut h = 0xcbf2_9ce4_8422_2325u64;
-        let mut mix = |v: &[[f32; 3]]| {
-            for p in v {
-                for x in p {
-                    h = (h ^ x.to_bits() as u64).wrapping_mul(0x0100_0000_01b3);
-                }
+        for p in c.points.iter().chain(c.normals.iter().flatten()) {
+            for x in p {
+                h = (h ^ x.to_bits() as u64).wrapping_mul(0x0100_0000_01b3);
             }
-        };
-        mix(&c.points);
-        if let Some(n) = &c.normals {
-            mix(n);
         }
+        h
+    }
+
+    fn new(hash: u64, c: &PointCloud) -> Self {
         CloudKey {
-            hash: h,
-            points: Arc::new(c.points.clone()),
-            normals: c.normals.clone().map(Arc::new),
+            hash,
+            points: c.points.clone(),
+            normals: c.normals.clone(),
         }
     }
 
-    fn same(&self, o: &CloudKey) -> bool {
+    /// Whether this is cloud `c` (of hash `hash`), bit for bit.
+    fn holds(&self, hash: u64, c: &PointCloud) -> bool {
         let bits = |a: &[[f32; 3]], b: &[[f32; 3]]| {
             a.len() == b.len()
                 && a.iter()
                     .zip(b)
                     .all(|(x, y)| (0..3).all(|k| x[k].to_bits() == y[k].to_bits()))
         };
-        self.hash == o.hash
-            && bits(&self.points, &o.points)
-            && match (&self.normals, &o.normals) {
+        self.hash == hash
+            && bits(&self.points, &c.points)
+            && match (&self.normals, &c.normals) {
                 (None, None) => true,
                 (Some(a), Some(b)) => bits(a, b),
                 _ => false,
@@ -457,10 +496,10 @@ impl CloudKey {
     }
 }
 
-/// What a prepared level depends on: the cloud, the voxel and the settings [`prepare_level`] reads.
-#[derive(Clone)]
-struct LevelKey {
-    cloud: CloudKey,
+/// What a prepared level depends on besides the cloud: the voxel and the settings [`prepare_level`]
+/// reads (lengths as their bits).
+#[derive(Clone, Copy, PartialEq)]
+struct LevelSettings {
     voxel: u64,
     for_features: bool,
     covariances: bool,
@@ -469,20 +508,6 @@ struct LevelKey {
     normal_max_neighbors: usize,
     orientation: Option<Orientation>,
     fpfh_radius_voxels: u64,
-}
-
-impl LevelKey {
-    fn same(&self, o: &LevelKey) -> bool {
-        self.voxel == o.voxel
-            && self.for_features == o.for_features
-            && self.covariances == o.covariances
-            && self.sided == o.sided
-            && self.normal_radius_voxels == o.normal_radius_voxels
-            && self.normal_max_neighbors == o.normal_max_neighbors
-            && self.orientation == o.orientation
-            && self.fpfh_radius_voxels == o.fpfh_radius_voxels
-            && self.cloud.same(&o.cloud)
-    }
 }
 
 impl PreparedLevels {
@@ -500,8 +525,7 @@ impl PreparedLevels {
         for_features: bool,
         covariances: bool,
     ) -> Result<Arc<Level>> {
-        let key = LevelKey {
-            cloud: CloudKey::new(cloud),
+        let settings = LevelSettings {
             voxel: voxel.to_bits(),
             for_features,
             covariances,
@@ -511,48 +535,22 @@ impl PreparedLevels {
             orientation: cfg.orientation,
             fpfh_radius_voxels: cfg.fpfh_radius_voxels.to_bits(),
         };
-        let held = self
-            .levels
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .iter()
-            .find(|(k, _)| k.same(&key))
-            .map(|(_, l)| l.clone());
-        if let Some(l) = held {
-            return Ok(l);
-        }
-        let level = Arc::new(prepare_level(cloud, voxel, cfg, for_features, covariances)?);
-        let mut kept = self.levels.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some((_, l)) = kept.iter().find(|(k, _)| k.same(&key)) {
-            return Ok(l.clone());
-        }
-        if kept.len() >= PREPARED_KEPT {
-            kept.remove(0);
-        }
-        kept.push((key, level.clone()));
-        Ok(level)
+        let hash = CloudKey::hash_of(cloud);
+        self.levels.get_or_compute(
+            |(c, s)| *s == settings && c.holds(hash, cloud),
+            || (CloudKey::new(hash, cloud), settings),
+            || prepare_level(cloud, voxel, cfg, for_features, covariances).map(Arc::new),
+        )
     }
 
     /// [`estimate_spacing`] of `cloud`, from the store when it holds it.
     fn spacing(&self, cloud: &PointCloud) -> Result<f64> {
-        let key = CloudKey::new(cloud);
-        let held = self
-            .spacings
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .iter()
-            .find(|(k, _)| k.same(&key))
-            .map(|(_, d)| *d);
-        if let Some(d) = held {
-            return Ok(d);
-        }
-        let d = estimate_spacing(&cloud.points)?;
-        let mut kept = self.spacings.lock().unwrap_or_else(|e| e.into_inner());
-        if kept.len() >= PREPARED_KEPT {
-            kept.remove(0);
-        }
-        kept.push((key, d));
-        Ok(d)
+        let hash = CloudKey::hash_of(cloud);
+        self.spacings.get_or_compute(
+            |c| c.holds(hash, cloud),
+            || CloudKey::new(hash, cloud),
+            || estimate_spacing(&cloud.points),
+        )
     }
 }
 
@@ -1929,7 +1927,7 @@ mod tests {
             })
             .unwrap()
         };
-        let entries = || shared.levels.lock().unwrap().len();
+        let entries = || shared.levels.entries.lock().unwrap().len();
         let alone = register(&source, &target, Some(&start), &cfg).unwrap();
         let first = with(&source);
         let kept = entries();
