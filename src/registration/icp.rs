@@ -20,6 +20,7 @@
 
 use crate::error::{check, Error, Result};
 use crate::geometry::cloud::{to_v64, transform_point};
+use crate::geometry::outer::OuterSum6;
 use crate::geometry::transform::apply_left_increment;
 use crate::index::KdIndex;
 use crate::preprocess::normals::LazyNormals;
@@ -328,40 +329,77 @@ fn unpack(c: &[f32; 6]) -> Matrix3<f64> {
 /// The rows of one pair: up to three `(Jacobian, residual)` and the pair's residual norm.
 type PairRows = ([(Vector6<f64>, f64); 3], usize, f64);
 
-/// Accumulates `JᵀWJ`, `JᵀWr` and `Σ w r²` over the pairs' rows, with the kernel weight of each pair's
-/// residual norm at scale `c`. Fixed-size chunks summed in order: the same bits at any thread count.
-fn normal_equations(
-    pairs: &[PairRows],
-    kernel: RobustKernel,
-    c: f64,
-) -> (Matrix6<f64>, Vector6<f64>, f64) {
-    pairs
-        .par_chunks(512)
-        .map(|chunk| {
-            let mut acc = (Matrix6::zeros(), Vector6::zeros(), 0.0);
-            for (rows, n, norm) in chunk {
-                let w = kernel.weight(*norm, c);
-                for (j, r) in &rows[..*n] {
-                    acc.0 += j * j.transpose() * w;
-                    acc.1 += j * (w * r);
-                    acc.2 += w * r * r;
-                }
-            }
-            acc
-        })
-        .collect::<Vec<_>>()
-        .into_iter()
-        .fold((Matrix6::zeros(), Vector6::zeros(), 0.0), |a, b| {
-            (a.0 + b.0, a.1 + b.1, a.2 + b.2)
-        })
+/// Pairs per chunk of [`Rows::normal_equations`]' reduction (fixed: the same bits at any thread count).
+const CHUNK: usize = 512;
+
+/// The residual rows of the kept pairs. Point-to-plane rows are computed where they are used, from the
+/// pairs: they are cheap, and over hundreds of thousands of pairs writing them out and reading them back
+/// costs more than computing them twice. The other factors' rows (GICP's whitening takes a 3x3 inverse
+/// and a Cholesky factor a pair) are computed once and stored.
+enum Rows<'p, 'a> {
+    /// Point-to-plane rows of these pairs, against the problem's target normals.
+    Plane(&'p Problem<'a>, &'p [Pair]),
+    Stored(Vec<PairRows>),
 }
 
-/// RMS of the pairs' residual norms, and RMS of their individual rows.
-fn residual_scales(pairs: &[PairRows]) -> (f64, f64) {
-    let n = pairs.len().max(1) as f64;
-    let rows: usize = pairs.iter().map(|p| p.1).sum();
-    let ss: f64 = pairs.iter().map(|p| p.2 * p.2).sum();
-    ((ss / n).sqrt(), (ss / rows.max(1) as f64).sqrt())
+impl Rows<'_, '_> {
+    fn len(&self) -> usize {
+        match self {
+            Rows::Plane(_, kept) => kept.len(),
+            Rows::Stored(rows) => rows.len(),
+        }
+    }
+
+    /// The rows of pair `k`.
+    #[inline]
+    fn get(&self, k: usize) -> PairRows {
+        match self {
+            Rows::Plane(problem, kept) => problem.plane_rows(&kept[k]),
+            Rows::Stored(rows) => rows[k],
+        }
+    }
+
+    /// RMS of the pairs' residual norms, and RMS of their individual rows.
+    fn residual_scales(&self) -> (f64, f64) {
+        let (rows, ss) = match self {
+            Rows::Plane(problem, kept) => {
+                let norms: Vec<f64> = kept.par_iter().map(|p| problem.plane_rows(p).2).collect();
+                (norms.len(), norms.iter().map(|x| x * x).sum::<f64>())
+            }
+            Rows::Stored(pairs) => (
+                pairs.iter().map(|p| p.1).sum(),
+                pairs.iter().map(|p| p.2 * p.2).sum(),
+            ),
+        };
+        let n = self.len().max(1) as f64;
+        ((ss / n).sqrt(), (ss / rows.max(1) as f64).sqrt())
+    }
+
+    /// Accumulates `JᵀWJ`, `JᵀWr` and `Σ w r²` over the rows, with the kernel weight of each pair's residual
+    /// norm at scale `c`. Fixed-size chunks summed in order: the same bits at any thread count.
+    fn normal_equations(&self, kernel: RobustKernel, c: f64) -> (Matrix6<f64>, Vector6<f64>, f64) {
+        let len = self.len();
+        (0..len.div_ceil(CHUNK))
+            .into_par_iter()
+            .map(|chunk| {
+                let (mut h, mut g, mut sse) = (OuterSum6::default(), Vector6::zeros(), 0.0);
+                for k in chunk * CHUNK..((chunk + 1) * CHUNK).min(len) {
+                    let (rows, n, norm) = self.get(k);
+                    let w = kernel.weight(norm, c);
+                    for (j, r) in &rows[..n] {
+                        h.add(j, w);
+                        g += j * (w * r);
+                        sse += w * r * r;
+                    }
+                }
+                (h.matrix(), g, sse)
+            })
+            .collect::<Vec<_>>()
+            .into_iter()
+            .fold((Matrix6::zeros(), Vector6::zeros(), 0.0), |a, b| {
+                (a.0 + b.0, a.1 + b.1, a.2 + b.2)
+            })
+    }
 }
 
 /// Runs ICP from `init`, moving `source` onto `target` (indexed by `target_index`). Point-to-plane needs
@@ -579,9 +617,9 @@ impl<'a> Problem<'a> {
 
     /// The residual rows of the kept pairs under `t`: one for point-to-plane, three for point-to-point
     /// and GICP (whitened by the pair's combined covariance).
-    fn rows(&self, kept: &[Pair], t: &Isometry3<f64>) -> Vec<PairRows> {
-        match self.cfg.factor {
-            IcpFactor::PointToPlane => kept.par_iter().map(|p| self.plane_rows(p)).collect(),
+    fn rows<'p>(&'p self, kept: &'p [Pair], t: &Isometry3<f64>) -> Rows<'p, 'a> {
+        Rows::Stored(match self.cfg.factor {
+            IcpFactor::PointToPlane => return Rows::Plane(self, kept),
             IcpFactor::PointToPoint => kept
                 .par_iter()
                 .map(|pr| {
@@ -611,7 +649,7 @@ impl<'a> Problem<'a> {
                     })
                     .collect()
             }
-        }
+        })
     }
 
     /// The kernel scale for rows whose pair residual RMS is `pair_sigma`: `kernel_scale_sigmas` of it, at
@@ -633,9 +671,9 @@ impl<'a> Problem<'a> {
 
     /// The rows of what is reported ([`Problem::reported_system`]): point-to-plane whenever the target has
     /// normals, else the factor's own.
-    fn reported_rows(&self, kept: &[Pair], t: &Isometry3<f64>) -> Vec<PairRows> {
+    fn reported_rows<'p>(&'p self, kept: &'p [Pair], t: &Isometry3<f64>) -> Rows<'p, 'a> {
         if self.normals.is_some() {
-            kept.par_iter().map(|p| self.plane_rows(p)).collect()
+            Rows::Plane(self, kept)
         } else {
             self.rows(kept, t)
         }
@@ -650,9 +688,9 @@ impl<'a> Problem<'a> {
         own: (Matrix6<f64>, f64, f64),
     ) -> (Matrix6<f64>, f64, f64) {
         if self.cfg.factor != IcpFactor::PointToPlane && self.normals.is_some() {
-            let prow: Vec<PairRows> = kept.par_iter().map(|p| self.plane_rows(p)).collect();
-            let (ps, _) = residual_scales(&prow);
-            let (ph, _, psse) = normal_equations(&prow, self.cfg.kernel, self.kernel_scale(ps));
+            let prow = Rows::Plane(self, kept);
+            let (ps, _) = prow.residual_scales();
+            let (ph, _, psse) = prow.normal_equations(self.cfg.kernel, self.kernel_scale(ps));
             (ph, ps.max(1e-12), psse)
         } else {
             (own.0, own.1.max(1e-12), own.2)
@@ -668,16 +706,17 @@ impl Problem<'_> {
             return (Matrix6::zeros(), 0);
         }
         let rows = self.reported_rows(kept, t);
-        let (ps, _) = residual_scales(&rows);
+        let (ps, _) = rows.residual_scales();
         let c = self.kernel_scale(ps);
         let moved: Vec<[f32; 3]> = kept.iter().map(|p| p.pw).collect();
         let edge = block_edge(&moved);
         let mut blocks: std::collections::BTreeMap<[i64; 3], Vector6<f64>> = Default::default();
-        for (pr, (rs, n, norm)) in kept.iter().zip(&rows) {
-            let w = self.cfg.kernel.weight(*norm, c);
+        for (k, pr) in kept.iter().enumerate() {
+            let (rs, n, norm) = rows.get(k);
+            let w = self.cfg.kernel.weight(norm, c);
             let key = pr.pw.map(|x| (x as f64 / edge).floor() as i64);
             let g = blocks.entry(key).or_insert_with(Vector6::zeros);
-            for (j, r) in &rs[..*n] {
+            for (j, r) in &rs[..n] {
                 *g += j * (w * r);
             }
         }
@@ -718,7 +757,7 @@ pub fn reassociated_information(
             "too few pairs for the re-associated information".into(),
         ));
     }
-    let c = problem.kernel_scale(residual_scales(&problem.reported_rows(&kept, t)).0);
+    let c = problem.kernel_scale(problem.reported_rows(&kept, t).residual_scales().0);
     // Within half the kernel's scale the weights stay near their values at `t`: a longer step would
     // measure the kernel's bounded influence (and the trimming), not the cost's curvature.
     let step = step.min(0.5 * c).max(1e-12);
@@ -736,7 +775,10 @@ pub fn reassociated_information(
     }
     let gradient = |pose: &Isometry3<f64>| -> Vector6<f64> {
         let kept = kept_at(pose);
-        normal_equations(&problem.reported_rows(&kept, pose), cfg.kernel, c).1
+        problem
+            .reported_rows(&kept, pose)
+            .normal_equations(cfg.kernel, c)
+            .1
     };
     // K[:, k] = Bᵀ (g(+step b_k) − g(−step b_k)) / 2 step: the derivative in the basis' coordinates.
     let mut k_s = Matrix6::zeros();
@@ -892,8 +934,8 @@ fn icp_with(
         let rmse = (d2s.iter().map(|&d| d as f64).sum::<f64>() / d2s.len() as f64).sqrt();
         let kept = &pairs[..keep];
         let rows = problem.rows(kept, &t);
-        let (pair_sigma, row_sigma) = residual_scales(&rows);
-        let (h, g, sse) = normal_equations(&rows, cfg.kernel, problem.kernel_scale(pair_sigma));
+        let (pair_sigma, row_sigma) = rows.residual_scales();
+        let (h, g, sse) = rows.normal_equations(cfg.kernel, problem.kernel_scale(pair_sigma));
         let (info, sigma, wsse) = problem.reported_system(kept, (h, row_sigma, sse));
         history.push(IcpIteration {
             pairs: pairs.len(),
@@ -1055,6 +1097,74 @@ mod tests {
 
     /// Lazy target normals give the eager result bit for bit, computing only the paired points' normals;
     /// a target with normals of its own is refused.
+    /// The normal equations and residual scales of point-to-plane rows computed where they are used are
+    /// those of the rows stored first and summed as full 6x6 outer products in chunks of 512 (the form
+    /// they replace), bit for bit, for every kernel, over several chunks and a partial last one.
+    #[test]
+    fn rows_computed_in_place_sum_as_stored_rows() {
+        let mut rng = Rng::new(23);
+        let target = box_surface(&mut rng, 6000);
+        let idx = KdIndex::new(&target);
+        let normals = estimate_normals(&target, &idx, &NormalConfig::default());
+        let src = box_surface(&mut rng, 2300);
+        let cfg = IcpConfig {
+            max_correspondence_distance: 0.2,
+            ..Default::default()
+        };
+        let (source, tgt) = (
+            IcpCloud::points(&src),
+            IcpCloud {
+                points: &target,
+                normals: Some(&normals),
+                covariances: None,
+            },
+        );
+        let problem = Problem::new(&source, &tgt, None, &idx, &cfg).unwrap();
+        let t = random_isometry(&mut rng, 0.03, 0.02);
+        let mut pairs = problem.correspondences(&t, &mut vec![u32::MAX; src.len()]);
+        let (keep, _) = problem.sort_and_trim(&mut pairs);
+        let kept = &pairs[..keep];
+        assert!(keep > 3 * CHUNK, "{keep} pairs");
+        let stored: Vec<PairRows> = kept.iter().map(|p| problem.plane_rows(p)).collect();
+        let oracle = |kernel: RobustKernel, c: f64| {
+            stored
+                .chunks(512)
+                .map(|chunk| {
+                    let mut acc = (Matrix6::zeros(), Vector6::zeros(), 0.0);
+                    for (rows, n, norm) in chunk {
+                        let w = kernel.weight(*norm, c);
+                        for (j, r) in &rows[..*n] {
+                            acc.0 += j * j.transpose() * w;
+                            acc.1 += j * (w * r);
+                            acc.2 += w * r * r;
+                        }
+                    }
+                    acc
+                })
+                .fold((Matrix6::zeros(), Vector6::zeros(), 0.0), |a, b| {
+                    (a.0 + b.0, a.1 + b.1, a.2 + b.2)
+                })
+        };
+        let (in_place, kept_rows) = (Rows::Plane(&problem, kept), Rows::Stored(stored.clone()));
+        let (ps, rs) = in_place.residual_scales();
+        assert_eq!((ps, rs), kept_rows.residual_scales());
+        let n = stored.len() as f64;
+        let ss: f64 = stored.iter().map(|p| p.2 * p.2).sum();
+        assert_eq!(ps, (ss / n).sqrt());
+        for kernel in [
+            RobustKernel::None,
+            RobustKernel::Huber,
+            RobustKernel::Tukey,
+            RobustKernel::Cauchy,
+            RobustKernel::GemanMcClure,
+        ] {
+            let c = 3.0 * ps;
+            let want = oracle(kernel, c);
+            assert_eq!(in_place.normal_equations(kernel, c), want, "{kernel:?}");
+            assert_eq!(kept_rows.normal_equations(kernel, c), want, "{kernel:?}");
+        }
+    }
+
     #[test]
     fn lazy_normals_give_the_eager_result() {
         let mut rng = Rng::new(22);
