@@ -332,20 +332,38 @@ type PairRows = ([(Vector6<f64>, f64); 3], usize, f64);
 /// Pairs per chunk of [`Rows::normal_equations`]' reduction (fixed: the same bits at any thread count).
 const CHUNK: usize = 512;
 
-/// The residual rows of the kept pairs. Point-to-plane rows are computed where they are used, from the
-/// pairs: they are cheap, and over hundreds of thousands of pairs writing them out and reading them back
-/// costs more than computing them twice. The other factors' rows (GICP's whitening takes a 3x3 inverse
-/// and a Cholesky factor a pair) are computed once and stored.
-enum Rows<'p, 'a> {
-    /// Point-to-plane rows of these pairs, against the problem's target normals.
-    Plane(&'p Problem<'a>, &'p [Pair]),
+/// The residual rows of the kept pairs. A point-to-plane row is kept as its target normal and residual (20
+/// bytes, the one pass that reads the target) and its Jacobian made where it is used: over hundreds of
+/// thousands of pairs, writing whole rows out (184 bytes a pair) and reading them back costs more. The
+/// other factors' rows (GICP's whitening takes a 3x3 inverse and a Cholesky factor a pair) are stored.
+enum Rows<'p> {
+    /// The pairs, and per pair the target normal and the point-to-plane residual.
+    Plane(&'p [Pair], Vec<([f32; 3], f64)>),
     Stored(Vec<PairRows>),
 }
 
-impl Rows<'_, '_> {
+impl<'p> Rows<'p> {
+    /// The point-to-plane rows of `kept` against `problem`'s target normals.
+    fn plane(problem: &Problem, kept: &'p [Pair]) -> Self {
+        let ns = problem.normals.as_ref().expect("checked");
+        Rows::Plane(
+            kept,
+            kept.par_iter()
+                .map(|pr| {
+                    let n = ns.get(pr.j as usize);
+                    let u = to_v64(&n);
+                    (
+                        n,
+                        u.dot(&(to_v64(&pr.pw) - to_v64(&problem.target[pr.j as usize]))),
+                    )
+                })
+                .collect(),
+        )
+    }
+
     fn len(&self) -> usize {
         match self {
-            Rows::Plane(_, kept) => kept.len(),
+            Rows::Plane(kept, _) => kept.len(),
             Rows::Stored(rows) => rows.len(),
         }
     }
@@ -354,7 +372,18 @@ impl Rows<'_, '_> {
     #[inline]
     fn get(&self, k: usize) -> PairRows {
         match self {
-            Rows::Plane(problem, kept) => problem.plane_rows(&kept[k]),
+            Rows::Plane(kept, nr) => {
+                // `row`'s arithmetic, with the normal and residual kept.
+                let (n, r) = nr[k];
+                let u = to_v64(&n);
+                let c = to_v64(&kept[k].pw).cross(&u);
+                let z = (Vector6::zeros(), 0.0);
+                (
+                    [(Vector6::new(c.x, c.y, c.z, u.x, u.y, u.z), r), z, z],
+                    1,
+                    r.abs(),
+                )
+            }
             Rows::Stored(rows) => rows[k],
         }
     }
@@ -362,10 +391,10 @@ impl Rows<'_, '_> {
     /// RMS of the pairs' residual norms, and RMS of their individual rows.
     fn residual_scales(&self) -> (f64, f64) {
         let (rows, ss) = match self {
-            Rows::Plane(problem, kept) => {
-                let norms: Vec<f64> = kept.par_iter().map(|p| problem.plane_rows(p).2).collect();
-                (norms.len(), norms.iter().map(|x| x * x).sum::<f64>())
-            }
+            Rows::Plane(_, nr) => (
+                nr.len(),
+                nr.iter().map(|(_, r)| r.abs() * r.abs()).sum::<f64>(),
+            ),
             Rows::Stored(pairs) => (
                 pairs.iter().map(|p| p.1).sum(),
                 pairs.iter().map(|p| p.2 * p.2).sum(),
@@ -603,7 +632,9 @@ impl<'a> Problem<'a> {
             .collect()
     }
 
-    /// The point-to-plane row of a pair (the target point's normal).
+    /// The point-to-plane row of a pair (the target point's normal), as [`Rows::plane`] was first written:
+    /// its oracle.
+    #[cfg(test)]
     fn plane_rows(&self, pr: &Pair) -> PairRows {
         let ns = self.normals.expect("checked");
         let r = row(
@@ -617,9 +648,9 @@ impl<'a> Problem<'a> {
 
     /// The residual rows of the kept pairs under `t`: one for point-to-plane, three for point-to-point
     /// and GICP (whitened by the pair's combined covariance).
-    fn rows<'p>(&'p self, kept: &'p [Pair], t: &Isometry3<f64>) -> Rows<'p, 'a> {
+    fn rows<'p>(&'p self, kept: &'p [Pair], t: &Isometry3<f64>) -> Rows<'p> {
         Rows::Stored(match self.cfg.factor {
-            IcpFactor::PointToPlane => return Rows::Plane(self, kept),
+            IcpFactor::PointToPlane => return Rows::plane(self, kept),
             IcpFactor::PointToPoint => kept
                 .par_iter()
                 .map(|pr| {
@@ -671,9 +702,9 @@ impl<'a> Problem<'a> {
 
     /// The rows of what is reported ([`Problem::reported_system`]): point-to-plane whenever the target has
     /// normals, else the factor's own.
-    fn reported_rows<'p>(&'p self, kept: &'p [Pair], t: &Isometry3<f64>) -> Rows<'p, 'a> {
+    fn reported_rows<'p>(&'p self, kept: &'p [Pair], t: &Isometry3<f64>) -> Rows<'p> {
         if self.normals.is_some() {
-            Rows::Plane(self, kept)
+            Rows::plane(self, kept)
         } else {
             self.rows(kept, t)
         }
@@ -688,7 +719,7 @@ impl<'a> Problem<'a> {
         own: (Matrix6<f64>, f64, f64),
     ) -> (Matrix6<f64>, f64, f64) {
         if self.cfg.factor != IcpFactor::PointToPlane && self.normals.is_some() {
-            let prow = Rows::Plane(self, kept);
+            let prow = Rows::plane(self, kept);
             let (ps, _) = prow.residual_scales();
             let (ph, _, psse) = prow.normal_equations(self.cfg.kernel, self.kernel_scale(ps));
             (ph, ps.max(1e-12), psse)
@@ -1145,7 +1176,7 @@ mod tests {
                     (a.0 + b.0, a.1 + b.1, a.2 + b.2)
                 })
         };
-        let (in_place, kept_rows) = (Rows::Plane(&problem, kept), Rows::Stored(stored.clone()));
+        let (in_place, kept_rows) = (Rows::plane(&problem, kept), Rows::Stored(stored.clone()));
         let (ps, rs) = in_place.residual_scales();
         assert_eq!((ps, rs), kept_rows.residual_scales());
         let n = stored.len() as f64;
