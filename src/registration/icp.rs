@@ -311,12 +311,14 @@ fn trimmed_count(sorted_d2: &[f32], n_source: usize, trim: Trim) -> usize {
 /// `p_w ← p_w + ω × p_w + v`.
 #[inline]
 fn row(pw: &[f32; 3], q: &[f32; 3], u: &Vector3<f64>) -> (Vector6<f64>, f64) {
-    let pw = to_v64(pw);
-    let c = pw.cross(u);
-    (
-        Vector6::new(c.x, c.y, c.z, u.x, u.y, u.z),
-        u.dot(&(pw - to_v64(q))),
-    )
+    (jacobian(pw, u), u.dot(&(to_v64(pw) - to_v64(q))))
+}
+
+/// The Jacobian `[(p_w × u)ᵀ, uᵀ]` of [`row`].
+#[inline]
+fn jacobian(pw: &[f32; 3], u: &Vector3<f64>) -> Vector6<f64> {
+    let c = to_v64(pw).cross(u);
+    Vector6::new(c.x, c.y, c.z, u.x, u.y, u.z)
 }
 
 /// A 3x3 symmetric matrix from its packed upper triangle `[xx, xy, xz, yy, yz, zz]`.
@@ -351,11 +353,8 @@ impl<'p> Rows<'p> {
             kept.par_iter()
                 .map(|pr| {
                     let n = ns.get(pr.j as usize);
-                    let u = to_v64(&n);
-                    (
-                        n,
-                        u.dot(&(to_v64(&pr.pw) - to_v64(&problem.target[pr.j as usize]))),
-                    )
+                    let q = &problem.target[pr.j as usize];
+                    (n, row(&pr.pw, q, &to_v64(&n)).1)
                 })
                 .collect(),
         )
@@ -373,16 +372,10 @@ impl<'p> Rows<'p> {
     fn get(&self, k: usize) -> PairRows {
         match self {
             Rows::Plane(kept, nr) => {
-                // `row`'s arithmetic, with the normal and residual kept.
+                // `row`, with the normal and residual kept.
                 let (n, r) = nr[k];
-                let u = to_v64(&n);
-                let c = to_v64(&kept[k].pw).cross(&u);
                 let z = (Vector6::zeros(), 0.0);
-                (
-                    [(Vector6::new(c.x, c.y, c.z, u.x, u.y, u.z), r), z, z],
-                    1,
-                    r.abs(),
-                )
+                ([(jacobian(&kept[k].pw, &to_v64(&n)), r), z, z], 1, r.abs())
             }
             Rows::Stored(rows) => rows[k],
         }
@@ -1126,11 +1119,10 @@ mod tests {
         }
     }
 
-    /// Lazy target normals give the eager result bit for bit, computing only the paired points' normals;
-    /// a target with normals of its own is refused.
-    /// The normal equations and residual scales of point-to-plane rows computed where they are used are
-    /// those of the rows stored first and summed as full 6x6 outer products in chunks of 512 (the form
-    /// they replace), bit for bit, for every kernel, over several chunks and a partial last one.
+    /// The normal equations and residual scales of point-to-plane pairs kept as their target normal and
+    /// residual, the Jacobians made in place, are those of whole rows stored first and summed as full 6x6
+    /// outer products in chunks of 512 (the form they replace), bit for bit, for every kernel, over
+    /// several chunks and a partial last one.
     #[test]
     fn rows_computed_in_place_sum_as_stored_rows() {
         let mut rng = Rng::new(23);
@@ -1196,6 +1188,8 @@ mod tests {
         }
     }
 
+    /// Lazy target normals give the eager result bit for bit, computing only the paired points' normals;
+    /// a target with normals of its own is refused.
     #[test]
     fn lazy_normals_give_the_eager_result() {
         let mut rng = Rng::new(22);
