@@ -17,6 +17,38 @@
 /// Points per leaf at most.
 const LEAF: usize = 12;
 
+/// How far beyond the asked distance limit [`KdIndex::nearest_within_memo`]'s searches look, as a
+/// factor of it: a query with nothing within the limit can then move by up to half the limit before it
+/// must search again (with 1.0 an unpaired point searches at every call). On ICP over the 7-Scenes and
+/// generated 1M pairs of BENCHMARK.md, 1.0, 1.25, 1.5 and 2.0 took the same time within the machine's
+/// noise (50 iterations over 576k points 5.4-5.7 s; the generated pair's 5 iterations 224-256 ms).
+pub const MEMO_REACH: f32 = 1.5;
+
+/// The relative margin [`KdIndex::nearest_within_memo`] keeps below the distance of the other points:
+/// an `f32` squared distance is within a few units of `f32::EPSILON` (relative) of the exact one, so
+/// 1e-5 is a hundred times what rounding can move it.
+pub const MEMO_MARGIN: f32 = 1e-5;
+
+/// One moving query's last search, for [`KdIndex::nearest_within_memo`]: where the query was, its
+/// nearest point and distance, and the distance within which no other point lay (cloud units).
+#[derive(Clone, Copy, Debug)]
+pub struct NearestMemo {
+    at: [f32; 3],
+    id: u32,
+    near: f32,
+    clear: f32,
+}
+
+impl NearestMemo {
+    /// A memo that knows nothing: the first call searches.
+    pub const EMPTY: NearestMemo = NearestMemo {
+        at: [0.0; 3],
+        id: u32::MAX,
+        near: f32::INFINITY,
+        clear: f32::NEG_INFINITY,
+    };
+}
+
 /// A node of the tree with the tight bounding box of its points: an internal node has the children `a`
 /// and `b` (node indices); a leaf holds the points `a..b` of the reordered array.
 #[derive(Clone, Copy, Debug)]
@@ -237,6 +269,36 @@ impl Tree {
         found.then_some(best)
     }
 
+    /// The nearest point within squared distance `max_d2` (inclusive; ties to the smaller index) and the
+    /// squared distance of the next nearest, or `max_d2` when no other point lies within it.
+    #[inline]
+    fn nearest_two(&self, q: &[f32; 3], max_d2: f32) -> (Option<(u32, f32)>, f32) {
+        let mut first: Option<(u32, f32)> = None;
+        let second = std::cell::Cell::new(max_d2);
+        self.search(
+            q,
+            || second.get(),
+            |pts| {
+                for (p, id) in pts {
+                    let d = dist2(q, p);
+                    if d > second.get() {
+                        continue;
+                    }
+                    match first {
+                        Some((fi, fd)) if !before(d, *id, fd, fi) => second.set(d),
+                        _ => {
+                            if let Some((_, fd)) = first {
+                                second.set(fd);
+                            }
+                            first = Some((*id, d));
+                        }
+                    }
+                }
+            },
+        );
+        (first, second.get())
+    }
+
     /// Whether any point lies at squared distance strictly below `max_d2`: stops at the first one found,
     /// visiting the nearer child first.
     #[inline]
@@ -378,33 +440,44 @@ impl KdIndex {
         Some((i as usize, d))
     }
 
-    /// [`KdIndex::nearest_within`] given a guess, point `hint` (an index into the indexed points, e.g. the
-    /// answer for a nearby query): the same answer, found faster when the guess is close to it (ICP's
-    /// correspondences from one iteration to the next). A hint out of range or beyond `max_d2` is
-    /// ignored.
+    /// [`KdIndex::nearest_within`] for a query that moves a little between calls (ICP's source points from
+    /// one iteration to the next): the same answer, without a search while the query stays within what
+    /// `memo` (this query's own, [`NearestMemo::EMPTY`] at first) knows from its last search. That search
+    /// found the nearest point and the distance within which no other point lies, and looked up to
+    /// [`MEMO_REACH`] times `sqrt(max_d2)`; a query moved by `m` since keeps its nearest point while that
+    /// point's distance plus `2 m` stays below the other points' (the triangle inequality), and keeps
+    /// having none within `sqrt(max_d2)` while `m` stays below the rest of the reach. A relative margin
+    /// ([`MEMO_MARGIN`]) covers the `f32` rounding, so the answer is always the one a search would give.
     #[inline]
-    pub fn nearest_within_hinted(
+    pub fn nearest_within_memo(
         &self,
         p: &[f32; 3],
         max_d2: f32,
-        hint: usize,
+        memo: &mut NearestMemo,
     ) -> Option<(usize, f32)> {
         let tree = self.tree.as_ref()?;
-        let start = tree
-            .slot
-            .get(hint)
-            .map(|&k| {
-                (
-                    tree.items[k as usize].1,
-                    dist2(p, &tree.items[k as usize].0),
-                )
-            })
-            .filter(|&(_, d)| d <= max_d2);
-        let (i, d) = match start {
-            Some(s) => tree.nearest_from(p, s, true)?,
-            None => tree.nearest(p, max_d2)?,
+        let moved = dist2(p, &memo.at).sqrt();
+        let clear = memo.clear * (1.0 - MEMO_MARGIN) - moved;
+        if memo.id != u32::MAX {
+            if memo.near + moved < clear {
+                let (q, id) = &tree.items[tree.slot[memo.id as usize] as usize];
+                let d = dist2(p, q);
+                return (d <= max_d2).then_some((*id as usize, d));
+            }
+        } else if clear > max_d2.sqrt() {
+            return None;
+        }
+        let reach = max_d2.sqrt() * MEMO_REACH;
+        let (first, second) = tree.nearest_two(p, reach * reach);
+        *memo = NearestMemo {
+            at: *p,
+            id: first.map_or(u32::MAX, |f| f.0),
+            near: first.map_or(f32::INFINITY, |f| f.1.sqrt()),
+            clear: second.sqrt(),
         };
-        Some((i as usize, d))
+        first
+            .filter(|&(_, d)| d <= max_d2)
+            .map(|(i, d)| (i as usize, d))
     }
 
     /// Whether any point lies closer than `max_d2` (a **squared** distance, exclusive) to `p`: the same
@@ -537,12 +610,6 @@ mod tests {
             let r2 = 0.01f32;
             let want = (b[0].1 <= r2).then_some(b[0]);
             assert_eq!(idx.nearest_within(&q, r2), want);
-            // A hint anywhere (the answer, a near or far point, a duplicate, out of range) changes
-            // nothing.
-            for hint in [b[0].0, b[1].0, b[5].0, b[b.len() - 1].0, 0, 3549, pts.len()] {
-                assert_eq!(idx.nearest_within_hinted(&q, r2, hint), want, "hint {hint}");
-                assert_eq!(idx.nearest_within_hinted(&q, 4.0, hint), Some(b[0]));
-            }
             // Strictly closer: at, just above and just below the nearest distance, and at r2.
             for t in [r2, b[0].1, b[0].1.next_up(), b[0].1.next_down(), 0.0] {
                 assert_eq!(idx.any_closer_than(&q, t), b[0].1 < t, "{t}");
@@ -571,21 +638,76 @@ mod tests {
                     .collect::<Vec<_>>()
             );
         }
-        // On a duplicated point, hinted at its later copy: the earlier index wins the tie.
-        for k in 0..50 {
-            let got = idx.nearest_within_hinted(&pts[k], 0.01, 3500 + k);
-            assert_eq!(got, brute(&pts, &pts[k]).first().copied());
-            assert_eq!(got.map(|h| h.0), Some(k));
-        }
-        assert!(KdIndex::new(&[]).nearest(&[0.0; 3]).is_none());
+        let mut memo = NearestMemo::EMPTY;
         assert!(KdIndex::new(&[])
-            .nearest_within_hinted(&[0.0; 3], 1.0, 0)
+            .nearest_within_memo(&[0.0; 3], 1.0, &mut memo)
             .is_none());
         assert!(!KdIndex::new(&[]).any_closer_than(&[0.0; 3], f32::INFINITY));
         // Exact duplicates: a query on a point is at distance 0, not closer than 0.
         assert!(!idx.any_closer_than(&pts[0], 0.0));
         assert!(idx.any_closer_than(&pts[0], f32::MIN_POSITIVE));
         assert!(KdIndex::new(&[]).knn(&[0.0; 3], 3).is_empty());
+    }
+
+    /// Queries that wander in steps from 1e-6 to 0.3 (on and off a noisy plane, among duplicates), each
+    /// with its own memo, against brute force at several limits; tiny steps keep the memo (no search).
+    #[test]
+    fn memo_gives_the_search_answer() {
+        let mut rng = Rng::new(17);
+        let mut pts: Vec<[f32; 3]> = (0..4000)
+            .map(|_| {
+                [
+                    rng.uniform(0.0, 1.0) as f32,
+                    rng.uniform(0.0, 1.0) as f32,
+                    rng.uniform(-2e-3, 2e-3) as f32,
+                ]
+            })
+            .collect();
+        let dups = pts[..100].to_vec();
+        pts.extend(dups);
+        let idx = KdIndex::new(&pts);
+        let mut kept = 0;
+        for (w, r2) in [(0usize, 4e-4f32), (1, 1e-2), (2, 1e-6), (3, f32::INFINITY)] {
+            for walker in 0..20 {
+                let mut memo = NearestMemo::EMPTY;
+                let mut q = if walker % 4 == 0 {
+                    pts[walker * 7]
+                } else {
+                    [
+                        rng.uniform(0.0, 1.0) as f32,
+                        rng.uniform(0.0, 1.0) as f32,
+                        rng.uniform(-0.05, 0.05) as f32,
+                    ]
+                };
+                for step in 0..60 {
+                    let size: f64 = [1e-6, 1e-4, 1e-3, 1e-2, 0.3][(step + w + walker) % 5];
+                    for v in q.iter_mut() {
+                        *v += rng.uniform(-size, size) as f32;
+                    }
+                    let before = memo.at;
+                    let b = brute(&pts, &q);
+                    let want = (b[0].1 <= r2).then_some(b[0]);
+                    assert_eq!(
+                        idx.nearest_within_memo(&q, r2, &mut memo),
+                        want,
+                        "{q:?} {r2}"
+                    );
+                    if size < 1e-5 && step > 0 && memo.at == before {
+                        kept += 1;
+                    }
+                }
+            }
+        }
+        assert!(kept > 100, "{kept} answers kept without a search");
+        // On a duplicated point: the earlier index, memo or not.
+        for k in 0..100 {
+            let mut memo = NearestMemo::EMPTY;
+            for _ in 0..2 {
+                let got = idx.nearest_within_memo(&pts[k], 0.01, &mut memo);
+                assert_eq!(got, brute(&pts, &pts[k]).first().copied());
+                assert_eq!(got.map(|h| h.0), Some(k));
+            }
+        }
     }
 
     /// Queries far from the cloud (above a plane, outside it) and a cloud big enough for the parallel

@@ -3,4 +3,4 @@
 
 mod kdtree;
 
-pub use kdtree::KdIndex;
+pub use kdtree::{KdIndex, NearestMemo, MEMO_MARGIN, MEMO_REACH};

@@ -22,7 +22,7 @@ use crate::error::{check, Error, Result};
 use crate::geometry::cloud::{to_v64, transform_point};
 use crate::geometry::outer::OuterSum6;
 use crate::geometry::transform::apply_left_increment;
-use crate::index::KdIndex;
+use crate::index::{KdIndex, NearestMemo};
 use crate::preprocess::normals::LazyNormals;
 use crate::registration::anderson::Anderson;
 use crate::registration::kernel::RobustKernel;
@@ -584,11 +584,11 @@ impl<'a> Problem<'a> {
     }
 
     /// Every source point's nearest target point within the distance limit under `t` that passes the
-    /// normal gate, in source order. `hints` (one per source point) holds each point's nearest target
-    /// point of the previous call (`u32::MAX` for none) and is updated: the search starts from it, with
-    /// the same answer.
-    fn correspondences(&self, t: &Isometry3<f64>, hints: &mut [u32]) -> Vec<Pair> {
-        debug_assert_eq!(hints.len(), self.source.len());
+    /// normal gate, in source order. `memos` (one per source point, from the previous call or
+    /// [`NearestMemo::EMPTY`]) lets a point that has moved little since keep its answer without a search
+    /// ([`KdIndex::nearest_within_memo`]: always the answer a search gives) and is updated.
+    fn correspondences(&self, t: &Isometry3<f64>, memos: &mut [NearestMemo]) -> Vec<Pair> {
+        debug_assert_eq!(memos.len(), self.source.len());
         let rot32: [[f32; 3]; 3] = {
             let m = t.rotation.to_rotation_matrix();
             std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)] as f32))
@@ -596,14 +596,12 @@ impl<'a> Problem<'a> {
         let (maxd2, sided) = (self.maxd2, self.cfg.sided);
         self.source
             .par_iter()
-            .zip(hints.par_iter_mut())
+            .zip(memos.par_iter_mut())
             .enumerate()
-            .filter_map(|(i, (p, hint))| {
+            .filter_map(|(i, (p, memo))| {
                 let pw = transform_point(t, p);
                 // Pairs beyond the distance limit are never used: a bounded search skips them early.
-                let found = self.index.nearest_within_hinted(&pw, maxd2, *hint as usize);
-                *hint = found.map_or(u32::MAX, |(j, _)| j as u32);
-                let (j, d2) = found?;
+                let (j, d2) = self.index.nearest_within_memo(&pw, maxd2, memo)?;
                 if let Some((cmin, ns, nt)) = self.gate {
                     let n = ns[i];
                     let m = &rot32;
@@ -685,12 +683,28 @@ impl<'a> Problem<'a> {
             .max(1e-12)
     }
 
-    /// Sorts `pairs` by distance (ties by source index: the same order at any thread count) and gives how
-    /// many of the nearest the trimming keeps, with the sorted squared distances.
-    fn sort_and_trim(&self, pairs: &mut [Pair]) -> (usize, Vec<f32>) {
-        pairs.par_sort_unstable_by(|a, b| a.d2.total_cmp(&b.d2).then(a.i.cmp(&b.i)));
-        let d2s: Vec<f32> = pairs.iter().map(|p| p.d2).collect();
-        (trimmed_count(&d2s, self.source.len(), self.cfg.trim), d2s)
+    /// Leaves in `pairs` (in source order) those the trimming keeps, the nearest (ties to the smaller
+    /// source index), and gives every pair's squared distance, sorted. Only the distances are sorted: the
+    /// kept pairs stay in source order, so the rows read the target in the source's spatial order.
+    fn trim(&self, pairs: &mut Vec<Pair>) -> Vec<f32> {
+        let mut d2s: Vec<f32> = pairs.par_iter().map(|p| p.d2).collect();
+        crate::stats::sort_f32(&mut d2s);
+        let keep = trimmed_count(&d2s, self.source.len(), self.cfg.trim);
+        if keep == 0 {
+            pairs.clear();
+        } else if keep < pairs.len() {
+            // Those below the bar, then as many at it as there is room for: the first in source order.
+            let bar = d2s[keep - 1];
+            let mut at_bar = keep - d2s.partition_point(|&d| d < bar);
+            pairs.retain(|p| {
+                let take = p.d2 < bar || (p.d2 == bar && at_bar > 0);
+                if p.d2 == bar && take {
+                    at_bar -= 1;
+                }
+                take
+            });
+        }
+        d2s
     }
 
     /// The rows of what is reported ([`Problem::reported_system`]): point-to-plane whenever the target has
@@ -770,9 +784,9 @@ pub fn reassociated_information(
 ) -> Result<Matrix6<f64>> {
     let problem = Problem::new(source, target, lazy, target_index, cfg)?;
     let kept_at = |pose: &Isometry3<f64>| {
-        let mut pairs = problem.correspondences(pose, &mut vec![u32::MAX; problem.source.len()]);
-        let (keep, _) = problem.sort_and_trim(&mut pairs);
-        pairs.truncate(keep);
+        let mut pairs =
+            problem.correspondences(pose, &mut vec![NearestMemo::EMPTY; problem.source.len()]);
+        problem.trim(&mut pairs);
         pairs
     };
     let kept = kept_at(t);
@@ -925,13 +939,13 @@ fn icp_with(
     });
     // Time of a pass whose accelerated pose was dropped, counted into the next record.
     let mut carried_ms = 0.0;
-    // The pose and the sorted pairs (with the kept count) of the record in `last`.
-    let mut last_kept: (Isometry3<f64>, Vec<Pair>, usize) = (t, Vec::new(), 0);
-    // Each source point's nearest target point of the last iteration, where its search starts.
-    let mut hints = vec![u32::MAX; problem.source.len()];
+    // The pose and the kept pairs of the record in `last`.
+    let mut last_kept: (Isometry3<f64>, Vec<Pair>) = (t, Vec::new());
+    // What each source point's last search found: while it moves little, its answer stands.
+    let mut memos = vec![NearestMemo::EMPTY; problem.source.len()];
     for it in 0..=cfg.max_iterations {
         let it_start = std::time::Instant::now();
-        let mut pairs = problem.correspondences(&t, &mut hints);
+        let mut pairs = problem.correspondences(&t, &mut memos);
         if let Some(a) = accel.as_mut() {
             let energy = truncated_energy(&pairs, n_source, problem.maxd2);
             if let Some((plain, before)) = a.proposal.take() {
@@ -953,16 +967,18 @@ fn icp_with(
                 cfg.max_correspondence_distance
             )));
         }
-        let (keep, d2s) = problem.sort_and_trim(&mut pairs);
-        let fitness = pairs.len() as f64 / n_source as f64;
+        let paired = pairs.len();
+        let d2s = problem.trim(&mut pairs);
+        let keep = pairs.len();
+        let fitness = paired as f64 / n_source as f64;
         let rmse = (d2s.iter().map(|&d| d as f64).sum::<f64>() / d2s.len() as f64).sqrt();
-        let kept = &pairs[..keep];
+        let kept = &pairs[..];
         let rows = problem.rows(kept, &t);
         let (pair_sigma, row_sigma) = rows.residual_scales();
         let (h, g, sse) = rows.normal_equations(cfg.kernel, problem.kernel_scale(pair_sigma));
         let (info, sigma, wsse) = problem.reported_system(kept, (h, row_sigma, sse));
         history.push(IcpIteration {
-            pairs: pairs.len(),
+            pairs: paired,
             kept: keep,
             fitness,
             rmse,
@@ -986,7 +1002,7 @@ fn icp_with(
             blocks: 0,
             history: Vec::new(),
         });
-        last_kept = (t, pairs, keep);
+        last_kept = (t, pairs);
         if converged || it == cfg.max_iterations {
             break;
         }
@@ -1020,8 +1036,8 @@ fn icp_with(
         };
     }
     let mut r = last.expect("at least one iteration");
-    let (kt, kpairs, keep) = last_kept;
-    (r.block_scores, r.blocks) = problem.block_scores(&kpairs[..keep], &kt);
+    let (kt, kept) = last_kept;
+    (r.block_scores, r.blocks) = problem.block_scores(&kept, &kt);
     r.iterations = iterations;
     r.converged = converged;
     r.history = history;
@@ -1144,10 +1160,10 @@ mod tests {
         );
         let problem = Problem::new(&source, &tgt, None, &idx, &cfg).unwrap();
         let t = random_isometry(&mut rng, 0.03, 0.02);
-        let mut pairs = problem.correspondences(&t, &mut vec![u32::MAX; src.len()]);
-        let (keep, _) = problem.sort_and_trim(&mut pairs);
-        let kept = &pairs[..keep];
-        assert!(keep > 3 * CHUNK, "{keep} pairs");
+        let mut pairs = problem.correspondences(&t, &mut vec![NearestMemo::EMPTY; src.len()]);
+        problem.trim(&mut pairs);
+        let kept = &pairs[..];
+        assert!(kept.len() > 3 * CHUNK, "{} pairs", kept.len());
         let stored: Vec<PairRows> = kept.iter().map(|p| problem.plane_rows(p)).collect();
         let oracle = |kernel: RobustKernel, c: f64| {
             stored
