@@ -812,8 +812,16 @@ fn run_pipeline(
 
     progress("downsampling, normals");
     let gicp = cfg.icp.factor == IcpFactor::Gicp;
-    let s0 = prepared(memo, &src, voxel, cfg, init.is_none(), gicp)?;
-    let t0 = prepared(memo, &tgt, voxel, cfg, init.is_none(), gicp)?;
+    // From a given start with normals ICP can compute on first use, the first level needs none up front:
+    // its target's come as ICP pairs them, its source's for the points it samples (the same normals).
+    let (s0, t0) = if init.is_some() && memo.is_none() && lazy_normals_ok(cfg) {
+        (bare_level(&src, voxel)?, bare_level(&tgt, voxel)?)
+    } else {
+        (
+            prepared(memo, &src, voxel, cfg, init.is_none(), gicp)?,
+            prepared(memo, &tgt, voxel, cfg, init.is_none(), gicp)?,
+        )
+    };
     timer.lap_counted(
         "downsample_normals",
         Some(src.len() + tgt.len()),
@@ -1265,18 +1273,22 @@ fn icp_pyramid(
         };
         let slev: &Level = sl.as_deref().unwrap_or(s0);
         let tlev: &Level = tl.as_deref().unwrap_or(t0);
-        let sub = subsample_source(slev, cfg.icp_max_source_points);
+        let ncfg = NormalConfig {
+            radius: Some(cfg.normal_radius_voxels * v),
+            max_neighbors: cfg.normal_max_neighbors,
+        };
+        let mut sub = subsample_source(slev, cfg.icp_max_source_points);
+        if level == 0 && slev.cloud.normals.is_none() {
+            // A first level prepared bare: the sampled points' normals, as the whole level's would be.
+            sub.normals = Some(sampled_normals(
+                slev,
+                cfg.icp_max_source_points,
+                ncfg.clone(),
+            ));
+        }
         let icfg = level_icp_config(cfg, v);
-        let lazy = lazy.then(|| {
-            LazyNormals::new(
-                &tlev.cloud.points,
-                &tlev.index,
-                NormalConfig {
-                    radius: Some(cfg.normal_radius_voxels * v),
-                    max_neighbors: cfg.normal_max_neighbors,
-                },
-            )
-        });
+        let lazy = (lazy || (level == 0 && tlev.cloud.normals.is_none()))
+            .then(|| LazyNormals::new(&tlev.cloud.points, &tlev.index, ncfg));
         let prep_ms = level_start.elapsed().as_secs_f64() * 1e3;
         let source_cloud = IcpCloud {
             points: &sub.points,
@@ -1472,17 +1484,22 @@ fn icp_level_clouds(
         })
     };
     let tl = if lazy_normals {
-        let mut cloud = voxel_downsample(tgt, voxel)?;
-        cloud.normals = None;
-        Arc::new(Level {
-            index: KdIndex::new(&cloud.points),
-            cloud,
-            covariances: None,
-        })
+        bare_level(tgt, voxel)?
     } else {
         prepared(memo, tgt, voxel, cfg, false, gicp)?
     };
     Ok((sl, tl))
+}
+
+/// `cloud` downsampled at `voxel` and indexed, without normals (not even the input's averaged ones).
+fn bare_level(cloud: &PointCloud, voxel: f64) -> Result<Arc<Level>> {
+    let mut cloud = voxel_downsample(cloud, voxel)?;
+    cloud.normals = None;
+    Ok(Arc::new(Level {
+        index: KdIndex::new(&cloud.points),
+        cloud,
+        covariances: None,
+    }))
 }
 
 /// Whether the finer ICP levels can compute their target normals on first use: point-to-plane on
@@ -1503,7 +1520,7 @@ struct SourceSample {
 /// covariance, `step = ⌈n / max(max_points, 100)⌉`.
 fn subsample_source(level: &Level, max_points: usize) -> SourceSample {
     let s_points = &level.cloud.points;
-    let step = s_points.len().div_ceil(max_points.max(100)).max(1);
+    let step = sample_step(s_points.len(), max_points);
     SourceSample {
         points: s_points.iter().step_by(step).copied().collect(),
         normals: level
@@ -1516,6 +1533,24 @@ fn subsample_source(level: &Level, max_points: usize) -> SourceSample {
             .as_ref()
             .map(|c| c.iter().step_by(step).copied().collect()),
     }
+}
+
+/// The stride of [`subsample_source`] over `n` points.
+fn sample_step(n: usize, max_points: usize) -> usize {
+    n.div_ceil(max_points.max(100)).max(1)
+}
+
+/// The normals of the points [`subsample_source`] keeps of `level` (which has none), estimated over the
+/// whole level's points as [`prepare_level`] estimates them when no features follow (unoriented).
+fn sampled_normals(level: &Level, max_points: usize, ncfg: NormalConfig) -> Vec<[f32; 3]> {
+    let points = &level.cloud.points;
+    let lazy = LazyNormals::new(points, &level.index, ncfg);
+    let step = sample_step(points.len(), max_points);
+    (0..points.len())
+        .into_par_iter()
+        .step_by(step)
+        .map(|i| lazy.get(i))
+        .collect()
 }
 
 /// Degeneracy of the coarsest level's information `r.information`, rotations scaled by the RMS radius
@@ -1942,6 +1977,51 @@ mod tests {
         assert!(entries() > kept, "the moved cloud was served stored levels");
         let other_alone = register(&moved, &target, Some(&start), &cfg).unwrap();
         assert_eq!(bits(&other), bits(&other_alone));
+    }
+
+    /// From a given start, point-to-plane registration prepares its first level bare (normals computed as
+    /// ICP pairs the target's points and for the source's sampled points only) and gives, bit for bit,
+    /// what the same registration with every normal prepared up front gives (shared levels prepare them
+    /// all), with and without a normal gate.
+    #[test]
+    fn a_bare_first_level_changes_nothing() {
+        let truth = Isometry3::new(Vector3::new(0.03, -0.02, 0.01), Vector3::z() * 0.02);
+        let start = Isometry3::new(Vector3::new(0.035, -0.015, 0.01), Vector3::z() * 0.025);
+        let target = floor_scene(true, 1);
+        let source = floor_scene(true, 2).transformed(&truth.inverse());
+        for gate in [None, Some(60.0)] {
+            let cfg = RegisterConfig {
+                icp: IcpConfig {
+                    factor: IcpFactor::PointToPlane,
+                    max_normal_angle_deg: gate,
+                    ..IcpConfig::default()
+                },
+                sided: false,
+                icp_max_source_points: 3000,
+                ..RegisterConfig::default()
+            };
+            assert!(lazy_normals_ok(&cfg));
+            let bare = register(&source, &target, Some(&start), &cfg).unwrap();
+            let shared = PreparedLevels::new();
+            let eager = register_request(RegisterRequest {
+                initial: Some(&start),
+                prepared: Some(&shared),
+                ..RegisterRequest::new(&source, &target, &cfg)
+            })
+            .unwrap();
+            let bits = |r: &Registration| r.transform.to_homogeneous().map(|x| x.to_bits());
+            assert_eq!(bits(&bare), bits(&eager), "gate {gate:?}");
+            assert_eq!(bare.covariance, eager.covariance);
+            assert_eq!(bare.fitness.to_bits(), eager.fitness.to_bits());
+            assert_eq!(bare.degeneracy.weak.len(), eager.degeneracy.weak.len());
+            assert_eq!(
+                bare.surface_agreement.to_bits(),
+                eager.surface_agreement.to_bits()
+            );
+            assert_eq!(bare.trust.trusted, eager.trust.trusted);
+            let (deg, m) = crate::geometry::transform::pose_error(&bare.transform, &truth);
+            assert!(deg < 0.1 && m < 2e-3, "{deg}° {m} m");
+        }
     }
 
     /// The hold test keeps a floor's yaw when boxes stand on it and reports it on the bare floor: every
