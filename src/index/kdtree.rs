@@ -241,32 +241,22 @@ impl Tree {
     /// smaller index.
     #[inline]
     fn nearest(&self, q: &[f32; 3], max_d2: f32) -> Option<(u32, f32)> {
-        self.nearest_from(q, (u32::MAX, max_d2), false)
-    }
-
-    /// [`Self::nearest`] starting from a candidate already found, `start` = `(id, d²)` when `found`
-    /// (then `d² ≤ max_d2`), else `(u32::MAX, max_d2)`: the search only visits boxes within the
-    /// candidate's distance, and ends with the same answer.
-    #[inline]
-    fn nearest_from(&self, q: &[f32; 3], start: (u32, f32), found: bool) -> Option<(u32, f32)> {
-        let mut best = start;
-        let mut found = found;
-        let best_ref = std::cell::Cell::new(start.1);
+        let mut best: Option<(u32, f32)> = None;
+        let bound = std::cell::Cell::new(max_d2);
         self.search(
             q,
-            || best_ref.get(),
+            || bound.get(),
             |pts| {
                 for (p, id) in pts {
                     let d = dist2(q, p);
-                    if d < best.1 || (d == best.1 && (!found || *id < best.0)) {
-                        best = (*id, d);
-                        found = true;
-                        best_ref.set(d);
+                    if d < bound.get() || (d == bound.get() && best.is_none_or(|(b, _)| *id < b)) {
+                        best = Some((*id, d));
+                        bound.set(d);
                     }
                 }
             },
         );
-        found.then_some(best)
+        best
     }
 
     /// The nearest point within squared distance `max_d2` (inclusive; ties to the smaller index) and the
@@ -448,6 +438,7 @@ impl KdIndex {
     /// point's distance plus `2 m` stays below the other points' (the triangle inequality), and keeps
     /// having none within `sqrt(max_d2)` while `m` stays below the rest of the reach. A relative margin
     /// ([`MEMO_MARGIN`]) covers the `f32` rounding, so the answer is always the one a search would give.
+    /// A memo belongs to one query and one index: one filled by another index means nothing here.
     #[inline]
     pub fn nearest_within_memo(
         &self,
@@ -638,6 +629,7 @@ mod tests {
                     .collect::<Vec<_>>()
             );
         }
+        assert!(KdIndex::new(&[]).nearest(&[0.0; 3]).is_none());
         let mut memo = NearestMemo::EMPTY;
         assert!(KdIndex::new(&[])
             .nearest_within_memo(&[0.0; 3], 1.0, &mut memo)
