@@ -168,6 +168,21 @@ fn cell(c: &mut Criterion) {
             )
         })
     });
+    use depthcal::calibration::pose_scatter::{estimate_pose_scatter, PoseScatterConfig};
+    let scfg = PoseScatterConfig::default();
+    g.bench_function("pose_scatter_both", |b| {
+        b.iter(|| {
+            black_box(
+                estimate_pose_scatter(&cell.robots[0], &a.views, &scfg)
+                    .unwrap()
+                    .scatter_mm,
+            ) + black_box(
+                estimate_pose_scatter(&cell.robots[1], &o.views, &scfg)
+                    .unwrap()
+                    .scatter_mm,
+            )
+        })
+    });
     g.finish();
 }
 

@@ -413,52 +413,62 @@ fn block_mid(view: &DepthView, k: usize) -> f64 {
     0.5 * (view.near[k] as f64 + view.far[k] as f64)
 }
 
-/// A view with each block's depths and its mid depth when smooth side by side (16 bytes a block), for the
-/// many lookups of the hand-eye residuals and the pose scatter: [`Self::depth`] is [`view_depth`], bit for
-/// bit, with the mid depths computed once and, for blocks of a power-of-two size, the divisions by the
-/// block size done as (exact) multiplications.
+/// A view tabulated for the many lookups of the hand-eye residuals and the pose scatter: [`Self::depth`] is
+/// [`view_depth`], bit for bit (test `smooth_depth_is_view_depth`), with the work that depends only on the
+/// blocks done once, in tables small enough to stay in the cache (a lookup's cost is its memory reads).
+///
+/// Between the centres of four neighbouring blocks lies a *cell*; a lookup interpolates within the cell
+/// its pixel falls in. Per cell one byte says whether all four blocks are smooth and agree (the bilinear
+/// case, the common one), so a lookup repeats none of the smoothness and agreement tests and reads the
+/// four mid depths (8 bytes a block) only then. The containing block is always one of its cell's four
+/// corners (the two are half a block apart), so a bilinear cell also answers the "has depth" test.
+/// Divisions by a power-of-two block size are done as (exact) multiplications.
 pub(crate) struct SmoothDepth<'a> {
     pub(crate) view: &'a DepthView,
-    /// Per block, row-major.
-    blocks: Vec<BlockDepth>,
+    /// Per block, row-major: the mid depth `(near + far) / 2` (metres) when [`block_smooth`], else NaN.
+    mids: Vec<f64>,
+    /// Per cell, `(size[0] + 1) x (size[1] + 1)` row-major: 1 when the cell's four blocks are smooth and
+    /// agree ([`mids_agree`]). The cell whose top-left block is `(iu, iv)` (from `-1`, corners clamped to
+    /// the view as [`view_depth`] does) sits at `(iv + 1) · (size[0] + 1) + iu + 1`.
+    bilinear: Vec<u8>,
     /// `1 / block` when the block size is a power of two (then `x * inv == x / block` exactly).
     inv_block: Option<f64>,
     pub(crate) cfg: &'a ConsistencyConfig,
 }
 
-/// One block of a [`SmoothDepth`].
-#[derive(Clone, Copy)]
-struct BlockDepth {
-    /// Mid depth `(near + far) / 2` in `f64` (metres) when the block is smooth ([`block_smooth`]), NaN
-    /// otherwise.
-    mid: f64,
-    /// Nearest depth (metres, 0 = none).
-    near: f32,
-    /// Farthest depth (metres).
-    far: f32,
-}
-
 impl<'a> SmoothDepth<'a> {
-    /// Tabulates `view`'s blocks under `cfg`.
+    /// Tabulates `view`'s blocks and cells under `cfg`.
     pub(crate) fn new(view: &'a DepthView, cfg: &'a ConsistencyConfig) -> Self {
-        let blocks = (0..view.near.len())
-            .map(|k| BlockDepth {
-                mid: if block_smooth(view, k, cfg) {
+        let n = view.near.len();
+        let mids: Vec<f64> = (0..n)
+            .map(|k| {
+                if block_smooth(view, k, cfg) {
                     block_mid(view, k)
                 } else {
                     f64::NAN
-                },
-                near: view.near[k],
-                far: view.far[k],
+                }
             })
             .collect();
+        let (sw, sh) = (view.size[0] as i64, view.size[1] as i64);
+        let mut bilinear = Vec::new();
+        if n == (sw * sh) as usize && n > 0 && view.far.len() == n {
+            bilinear.reserve(((sw + 1) * (sh + 1)) as usize);
+            for iv in -1..sh {
+                for iu in -1..sw {
+                    let m = corners(iu, iv, sw, sh).map(|k| mids[k]);
+                    let ok = m.iter().all(|x| !x.is_nan()) && mids_agree(&m, cfg);
+                    bilinear.push(ok as u8);
+                }
+            }
+        }
         let inv_block = view
             .block
             .is_power_of_two()
             .then(|| 1.0 / view.block as f64);
         SmoothDepth {
             view,
-            blocks,
+            mids,
+            bilinear,
             inv_block,
             cfg,
         }
@@ -467,7 +477,7 @@ impl<'a> SmoothDepth<'a> {
     /// [`block_smooth`] of block `k` (row-major).
     #[inline]
     pub(crate) fn smooth(&self, k: usize) -> bool {
-        !self.blocks[k].mid.is_nan()
+        !self.mids[k].is_nan()
     }
 
     /// `x / block`.
@@ -479,25 +489,113 @@ impl<'a> SmoothDepth<'a> {
         }
     }
 
+    /// Where coordinate `x` (pixels, along either image axis) falls among the blocks: the containing
+    /// block, the interpolation cell's first block and the fraction of the way to the next block centre.
+    /// A lookup's two axes are independent, so lookups on a common row or column can share one.
+    #[inline(always)]
+    pub(crate) fn axis(&self, x: f64) -> Axis {
+        let half = (self.view.block as f64 - 1.0) * 0.5;
+        let f = self.per_block(x - half);
+        let cell = floor_i64(f);
+        Axis {
+            x,
+            block: floor_i64(self.per_block(x + 0.5)),
+            cell,
+            frac: f - cell as f64,
+        }
+    }
+
     /// [`view_depth`] at pixel `(u, v)`.
     #[inline]
     pub(crate) fn depth(&self, u: f64, v: f64) -> Option<(f64, f64)> {
+        self.depth_on(&self.axis(u), &self.axis(v))
+    }
+
+    /// [`view_depth`] at the pixel of axes `u` and `v` ([`Self::axis`]).
+    #[inline]
+    pub(crate) fn depth_on(&self, u: &Axis, v: &Axis) -> Option<(f64, f64)> {
+        let (sw, sh) = (self.view.size[0] as i64, self.view.size[1] as i64);
+        let (bu, bv, iu, iv) = (u.block, v.block, u.cell, v.cell);
+        if bu < 0 || bv < 0 || bu >= sw || bv >= sh {
+            return None;
+        }
+        // The containing block is a corner of the cell: `bu − iu` is 0 or 1 (the two positions are half a
+        // block apart), so a bilinear cell (all four smooth) also says the block has depth.
+        if bu - iu > 1 || bu < iu || bv - iv > 1 || bv < iv || self.bilinear.is_empty() {
+            return self.depth_by_blocks(u.x, v.x);
+        }
+        if self.bilinear[((iv + 1) * (sw + 1) + iu + 1) as usize] != 0 {
+            let m = corners(iu, iv, sw, sh).map(|k| self.mids[k]);
+            let d = bilinear(&m, u.frac, v.frac);
+            return Some((d, d));
+        }
+        let k = (bv * sw + bu) as usize;
+        let (near, far) = (self.view.near[k], self.view.far[k]);
+        (near > 0.0).then_some((near as f64, far as f64))
+    }
+
+    /// [`view_depth`] from the blocks alone (never taken when the arithmetic behaves: see [`Self::depth`]).
+    #[cold]
+    fn depth_by_blocks(&self, u: f64, v: f64) -> Option<(f64, f64)> {
         depth_with(
             self.view,
             u,
             v,
             self.cfg,
             |x| self.per_block(x),
-            |k| {
-                let b = &self.blocks[k];
-                (b.near as f64, b.far as f64)
-            },
-            |k| {
-                let m = self.blocks[k].mid;
-                (!m.is_nan()).then_some(m)
-            },
+            |k| (self.view.near[k] as f64, self.view.far[k] as f64),
+            |k| (!self.mids[k].is_nan()).then_some(self.mids[k]),
         )
     }
+}
+
+/// One image coordinate of a [`SmoothDepth`] lookup ([`SmoothDepth::axis`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Axis {
+    /// The coordinate, pixels.
+    x: f64,
+    /// The block containing it.
+    block: i64,
+    /// The first block of the interpolation cell it falls in (from −1).
+    cell: i64,
+    /// How far past that block's centre, in blocks, in [0, 1).
+    frac: f64,
+}
+
+impl Axis {
+    /// The coordinate, pixels.
+    #[inline(always)]
+    pub(crate) fn x(&self) -> f64 {
+        self.x
+    }
+}
+
+/// The row-major block indices of the cell with top-left block `(iu, iv)`, in the order `(iu, iv)`, `(iu +
+/// 1, iv)`, `(iu, iv + 1)`, `(iu + 1, iv + 1)`, each clamped to a view of `sw x sh` blocks.
+#[inline(always)]
+fn corners(iu: i64, iv: i64, sw: i64, sh: i64) -> [usize; 4] {
+    [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(du, dv)| {
+        let (x, y) = ((iu + du).clamp(0, sw - 1), (iv + dv).clamp(0, sh - 1));
+        (y * sw + x) as usize
+    })
+}
+
+/// Four neighbouring blocks' mid depths (metres) lie on one surface: their spread is within the
+/// smoothness allowance at their middle depth.
+#[inline(always)]
+fn mids_agree(mids: &[f64; 4], cfg: &ConsistencyConfig) -> bool {
+    let lo = mids.iter().cloned().fold(f64::INFINITY, f64::min);
+    let hi = mids.iter().cloned().fold(0.0, f64::max);
+    let z = 0.5 * (lo + hi);
+    hi - lo <= 2.0 * cfg.smooth_relative * z + 6.0 * cfg.sigma(z)
+}
+
+/// Bilinear interpolation of a cell's four mid depths at fractions `au` (along u) and `av` (along v).
+#[inline(always)]
+fn bilinear(mids: &[f64; 4], au: f64, av: f64) -> f64 {
+    let top = mids[0] * (1.0 - au) + mids[1] * au;
+    let bottom = mids[2] * (1.0 - au) + mids[3] * au;
+    top * (1.0 - av) + bottom * av
 }
 
 /// [`view_depth`] with `per_block(x)`, `x / block` (pixels to blocks), `near_far(k)`, block `k`'s nearest
@@ -527,29 +625,16 @@ fn depth_with(
     let fu = per_block(u - (b - 1.0) * 0.5);
     let fv = per_block(v - (b - 1.0) * 0.5);
     let (iu, iv) = (floor_i64(fu), floor_i64(fv));
-    let (au, av) = (fu - iu as f64, fv - iv as f64);
     let mut mids = [0f64; 4];
-    let mut ok = true;
-    for (c, (du, dv)) in [(0, 0), (1, 0), (0, 1), (1, 1)].into_iter().enumerate() {
-        let (x, y) = ((iu + du).clamp(0, sw - 1), (iv + dv).clamp(0, sh - 1));
-        match smooth_mid((y * sw + x) as usize) {
+    for (c, k) in corners(iu, iv, sw, sh).into_iter().enumerate() {
+        match smooth_mid(k) {
             Some(m) => mids[c] = m,
-            None => {
-                ok = false;
-                break;
-            }
+            None => return Some((near, far)),
         }
     }
-    if ok {
-        let lo = mids.iter().cloned().fold(f64::INFINITY, f64::min);
-        let hi = mids.iter().cloned().fold(0.0, f64::max);
-        let z = 0.5 * (lo + hi);
-        if hi - lo <= 2.0 * cfg.smooth_relative * z + 6.0 * cfg.sigma(z) {
-            let top = mids[0] * (1.0 - au) + mids[1] * au;
-            let bottom = mids[2] * (1.0 - au) + mids[3] * au;
-            let d = top * (1.0 - av) + bottom * av;
-            return Some((d, d));
-        }
+    if mids_agree(&mids, cfg) {
+        let d = bilinear(&mids, fu - iu as f64, fv - iv as f64);
+        return Some((d, d));
     }
     Some((near, far))
 }

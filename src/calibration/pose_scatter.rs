@@ -25,9 +25,7 @@
 //! repeatability it replaces it in the covariance of `T_base1_base2` ([`crate::calibration::uncertainty`]).
 
 use crate::calibration::consistency::ConsistencyConfig;
-use crate::calibration::handeye::depth::residuals::{
-    test_point, Association, FramePoints, Problem, Target,
-};
+use crate::calibration::handeye::depth::residuals::{Association, FrameMap, FramePoints, Problem};
 use crate::calibration::uncertainty::adjoint;
 use crate::camera::DepthView;
 use crate::cell::CellRobot;
@@ -36,7 +34,7 @@ use crate::geometry::outer::OuterSum6;
 use crate::registration::RobustKernel;
 use crate::stats::median;
 use nalgebra::{
-    DMatrix, DVector, Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3, Vector6,
+    DMatrix, DVector, Isometry3, Matrix3, Matrix6, Translation3, UnitQuaternion, Vector3, Vector6,
 };
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -216,6 +214,32 @@ fn about(c: &Vector3<f64>, d: &Vector6<f64>) -> Isometry3<f64> {
     Isometry3::from_parts(Translation3::from(c - r * c + v), r)
 }
 
+/// A frame-to-frame map as the isometry itself (`q = a · p`, quaternion rotation), as the scatter's
+/// equations have always moved the points, with its rotation as a matrix for the side-of-surface rule.
+struct IsometryMap {
+    a: Isometry3<f64>,
+    r: Matrix3<f64>,
+}
+
+impl IsometryMap {
+    fn of(a: Isometry3<f64>) -> Self {
+        IsometryMap {
+            r: *a.rotation.to_rotation_matrix().matrix(),
+            a,
+        }
+    }
+}
+
+impl FrameMap for IsometryMap {
+    fn rotation(&self) -> &Matrix3<f64> {
+        &self.r
+    }
+    #[inline]
+    fn apply(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        (self.a * nalgebra::Point3::from(*p)).coords
+    }
+}
+
 /// The normal equations of all frames' corrections at the current poses, added in a fixed order.
 fn normal_equations(
     problem: &Problem,
@@ -224,53 +248,35 @@ fn normal_equations(
     asn: &Association,
 ) -> (DMatrix<f64>, DVector<f64>, Stats) {
     let n = cams.len();
-    let size = (problem.intr.width as f64, problem.intr.height as f64);
+    let map = |i: usize, j: usize| IsometryMap::of(cams[j].inverse() * cams[i]);
+    let tests = problem.test_pairs(asn, map);
     // Per frame i: for each other frame j, the 6x6 block JᵀWJ and the 6-vector JᵀWr of i's points
     // against j's surfaces.
     #[allow(clippy::type_complexity)]
-    let per_frame: Vec<(Vec<(usize, Matrix6<f64>, Vector6<f64>, usize)>, Stats)> = (0..n)
+    let per_frame: Vec<(Vec<(usize, Matrix6<f64>, Vector6<f64>, usize)>, Stats)> = tests
         .into_par_iter()
-        .map(|i| {
+        .enumerate()
+        .map(|(i, pairs)| {
             let fp: &FramePoints = &problem.points[i];
             let mut out = Vec::new();
             let mut stats = Stats::default();
             let mut used = vec![false; fp.points.len()];
-            for j in (0..n).filter(|&j| j != i) {
-                let a = cams[j].inverse() * cams[i];
-                let r = *a.rotation.to_rotation_matrix().matrix();
+            for (j, pt) in pairs.iter().enumerate().filter(|&(j, _)| j != i) {
                 let rj = *cams[j].rotation.to_rotation_matrix().matrix();
-                let target = Target {
-                    depth: &problem.depths[j],
-                    intr: problem.intr,
-                    size,
-                };
                 let (mut h, mut g, mut k) = (OuterSum6::default(), Vector6::zeros(), 0usize);
-                let mut wrong_side = 0usize;
-                for (m, (p, np)) in fp.points.iter().zip(&fp.normals).enumerate() {
-                    let q = a * nalgebra::Point3::from(*p);
-                    let test = test_point(
-                        &target,
-                        problem.cfg,
-                        asn,
-                        &r,
-                        (p, np),
-                        &q.coords,
-                        |_, _, _, _| true,
-                    );
-                    let Some((nj, res, sigma, w)) = test.hit(&mut wrong_side) else {
-                        continue;
-                    };
-                    let big_n = rj * nj;
+                for f in &pt.hits {
+                    let p = &fp.points[f.k as usize];
+                    let big_n = rj * f.nj;
                     let pc = (cams[i] * nalgebra::Point3::from(*p)).coords - centre;
                     let jw = pc.cross(&big_n);
                     let row = Vector6::new(jw.x, jw.y, jw.z, big_n.x, big_n.y, big_n.z);
-                    let ws = w / (sigma * sigma);
+                    let ws = f.weight / (f.sigma * f.sigma);
                     h.add(&row, ws);
-                    g += row * (res * ws);
+                    g += row * (f.res * ws);
                     k += 1;
-                    stats.chi2 += w * (res / sigma).powi(2);
-                    stats.weight += w;
-                    used[m] = true;
+                    stats.chi2 += f.weight * (f.res / f.sigma).powi(2);
+                    stats.weight += f.weight;
+                    used[f.k as usize] = true;
                 }
                 if k > 0 {
                     out.push((j, h.matrix(), g, k));

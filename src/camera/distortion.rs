@@ -141,6 +141,16 @@ pub fn distort(model: DistortionModel, c: &[f64; 5], x: f64, y: f64) -> (f64, f6
     }
 }
 
+/// [`undistort`] returns its input unchanged (no model, or a Brown-Conrady variant without terms): pixel
+/// rays are then separable, `x` from the column alone and `y` from the row alone.
+pub fn undistort_is_identity(model: DistortionModel, c: &[f64; 5]) -> bool {
+    match model {
+        DistortionModel::None => true,
+        DistortionModel::BrownConrady | DistortionModel::InverseBrownConrady => no_terms(c),
+        DistortionModel::KannalaBrandt4 => false,
+    }
+}
+
 /// Removes the distortion: distorted normalised coordinates → ideal normalised coordinates (the
 /// deprojection direction, librealsense's `rs2_deproject_pixel_to_point` after the focal length).
 ///
@@ -267,5 +277,40 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// Where `undistort_is_identity` says so, `undistort` returns its input bit for bit; a camera with
+    /// terms is never called the identity.
+    #[test]
+    fn the_identity_is_the_identity() {
+        let terms = [0.1, -0.2, 0.001, -0.002, 0.05];
+        let models = [
+            DistortionModel::None,
+            DistortionModel::BrownConrady,
+            DistortionModel::InverseBrownConrady,
+            DistortionModel::KannalaBrandt4,
+        ];
+        let mut identities = 0;
+        for m in models {
+            assert!(!undistort_is_identity(m, &terms) || m == DistortionModel::None);
+            for c in [[0.0; 5], terms] {
+                if !undistort_is_identity(m, &c) {
+                    continue;
+                }
+                identities += 1;
+                for k in 0..1000 {
+                    let (x, y) = (
+                        (k as f64 * 0.731).sin() * 0.9,
+                        (k as f64 * 1.37).cos() * 0.7,
+                    );
+                    let (ux, uy) = undistort(m, &c, x, y);
+                    assert_eq!((ux.to_bits(), uy.to_bits()), (x.to_bits(), y.to_bits()));
+                }
+            }
+        }
+        assert_eq!(
+            identities, 4,
+            "None twice, the two Brown-Conrady variants without terms"
+        );
     }
 }

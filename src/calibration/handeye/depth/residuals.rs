@@ -9,8 +9,9 @@
 //! the frames.
 
 use crate::calibration::consistency::{
-    sample_view, splitmix, ConsistencyConfig, Sample, SmoothDepth,
+    sample_view, splitmix, Axis, ConsistencyConfig, Sample, SmoothDepth,
 };
+use crate::camera::distortion::undistort_is_identity;
 use crate::camera::{DepthView, Intrinsics};
 use crate::geometry::outer::OuterSum6;
 use crate::registration::RobustKernel;
@@ -27,18 +28,28 @@ pub(crate) fn surface_at(
     u: f64,
     v: f64,
 ) -> Option<(Vector3<f64>, Vector3<f64>)> {
-    let smooth = |u: f64, v: f64| -> Option<Vector3<f64>> {
-        let (near, far) = depth.depth(u, v)?;
+    let b = depth.view.block as f64;
+    // Without distortion a pixel's ray is `x` from its column and `y` from its row (what
+    // `Intrinsics::deproject` computes, without the call).
+    let separable = undistort_is_identity(intr.model, &intr.coeffs);
+    let smooth = |au: &Axis, av: &Axis| -> Option<Vector3<f64>> {
+        let (near, far) = depth.depth_on(au, av)?;
         if far - near > 1e-9 || near <= 0.0 {
             return None;
         }
-        let p = intr.deproject([u, v], near);
+        let p = if separable {
+            let (x, y) = ((au.x() - intr.ppx) / intr.fx, (av.x() - intr.ppy) / intr.fy);
+            [x * near, y * near, near]
+        } else {
+            intr.deproject([au.x(), av.x()], near)
+        };
         Some(Vector3::new(p[0], p[1], p[2]))
     };
-    let b = depth.view.block as f64;
-    let p = smooth(u, v)?;
-    let du = smooth(u + b, v)? - smooth(u - b, v)?;
-    let dv = smooth(u, v + b)? - smooth(u, v - b)?;
+    // The five lookups share their columns and rows.
+    let (cu, cv) = (depth.axis(u), depth.axis(v));
+    let p = smooth(&cu, &cv)?;
+    let du = smooth(&depth.axis(u + b), &cv)? - smooth(&depth.axis(u - b), &cv)?;
+    let dv = smooth(&cu, &depth.axis(v + b))? - smooth(&cu, &depth.axis(v - b))?;
     let n = du.cross(&dv);
     let len = n.norm();
     if len.is_nan() || len <= 0.0 {
@@ -332,6 +343,123 @@ impl PointTest {
     }
 }
 
+/// How one frame's camera coordinates map into another camera's: `q = apply(p)`, with the rotation part
+/// as a matrix (the side-of-surface rule turns normals with it). Each caller keeps its own arithmetic,
+/// so that the tests it gets back are the ones it would have computed.
+pub(crate) trait FrameMap {
+    /// The rotation part.
+    fn rotation(&self) -> &Matrix3<f64>;
+    /// Point `p` of the first camera, in the second's coordinates (metres).
+    fn apply(&self, p: &Vector3<f64>) -> Vector3<f64>;
+}
+
+/// A [`FrameMap`] as a rotation matrix and a translation: `q = r·p + t`.
+pub(crate) struct MatrixMap {
+    pub(crate) r: Matrix3<f64>,
+    pub(crate) t: Vector3<f64>,
+}
+
+impl MatrixMap {
+    pub(crate) fn of(m: &Isometry3<f64>) -> Self {
+        MatrixMap {
+            r: *m.rotation.to_rotation_matrix().matrix(),
+            t: m.translation.vector,
+        }
+    }
+}
+
+impl FrameMap for MatrixMap {
+    fn rotation(&self) -> &Matrix3<f64> {
+        &self.r
+    }
+    #[inline]
+    fn apply(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        self.r * p + self.t
+    }
+}
+
+/// A point's test that found a surface ([`PointTest::Hit`]): the point's index in its frame's sample,
+/// the surface's unit normal, the residual (m), its 1-σ (m) and the robust kernel's weight.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Found {
+    pub(crate) k: u32,
+    pub(crate) nj: Vector3<f64>,
+    pub(crate) res: f64,
+    pub(crate) sigma: f64,
+    pub(crate) weight: f64,
+}
+
+/// The tests of one frame's sampled points in one other camera: the hits in sample order, and how many
+/// the side-of-surface rule refused.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct PairTests {
+    pub(crate) hits: Vec<Found>,
+    pub(crate) wrong_side: usize,
+}
+
+impl Problem<'_> {
+    /// Every frame's sampled points tested in every other camera (`map(i, j)` takes camera `i`'s
+    /// coordinates into camera `j`'s), as `[i][j]` (empty for `j == i`).
+    ///
+    /// The tests run camera by camera: while every other frame's points are tested against one view, its
+    /// depth table stays in the cache. Run frame by frame instead, each frame pair's few hundred scattered
+    /// lookups each missed the cache (every other view had been read since), which cost about half of the
+    /// hand-eye check's and the pose scatter's time. Deterministic at any thread count.
+    pub(crate) fn test_pairs<M: FrameMap>(
+        &self,
+        asn: &Association,
+        map: impl Fn(usize, usize) -> M + Sync,
+    ) -> Vec<Vec<PairTests>> {
+        let n = self.frames();
+        let size = (self.intr.width as f64, self.intr.height as f64);
+        let by_target: Vec<Vec<PairTests>> = (0..n)
+            .into_par_iter()
+            .map(|j| {
+                let target = Target {
+                    depth: &self.depths[j],
+                    intr: self.intr,
+                    size,
+                };
+                (0..n)
+                    .map(|i| {
+                        let mut out = PairTests::default();
+                        if i == j {
+                            return out;
+                        }
+                        let m = map(i, j);
+                        let r = m.rotation();
+                        let fp = &self.points[i];
+                        for (k, (p, np)) in fp.points.iter().zip(&fp.normals).enumerate() {
+                            let q = m.apply(p);
+                            let test =
+                                test_point(&target, self.cfg, asn, r, (p, np), &q, |_, _, _, _| {
+                                    true
+                                });
+                            if let Some((nj, res, sigma, weight)) = test.hit(&mut out.wrong_side) {
+                                out.hits.push(Found {
+                                    k: k as u32,
+                                    nj,
+                                    res,
+                                    sigma,
+                                    weight,
+                                });
+                            }
+                        }
+                        out
+                    })
+                    .collect()
+            })
+            .collect();
+        let mut by_frame: Vec<Vec<PairTests>> = (0..n).map(|_| Vec::with_capacity(n)).collect();
+        for row in by_target {
+            for (i, t) in row.into_iter().enumerate() {
+                by_frame[i].push(t);
+            }
+        }
+        by_frame
+    }
+}
+
 impl Problem<'_> {
     /// How the residuals at hand-eye `x` (association `a`) answer to errors of the flange poses: per frame
     /// `k`, `C_k = Σ w/σ² J_xᵀ J_εk` over every test, where `J_x` is a test's row for the hand-eye change
@@ -346,45 +474,35 @@ impl Problem<'_> {
     ) -> Vec<Matrix6<f64>> {
         let n = self.frames();
         let x_inv = x.inverse();
-        let size = (self.intr.width as f64, self.intr.height as f64);
+        let cam_base = |j: usize| x_inv * self.t_base_ee[j].inverse();
+        let map = |i: usize, j: usize| MatrixMap::of(&(cam_base(j) * (self.t_base_ee[i] * x)));
+        let tests = self.test_pairs(a, map);
         // Per source frame i: its own block, and the blocks of the frames its points were tested in.
         #[allow(clippy::type_complexity)]
-        let per_frame: Vec<(Matrix6<f64>, Vec<(usize, Matrix6<f64>)>)> = (0..n)
+        let per_frame: Vec<(Matrix6<f64>, Vec<(usize, Matrix6<f64>)>)> = tests
             .into_par_iter()
-            .map(|i| {
+            .enumerate()
+            .map(|(i, pairs)| {
                 let mut own = Matrix6::zeros();
                 let mut others = Vec::new();
                 let fp = &self.points[i];
                 let base_cam_i = self.t_base_ee[i] * x;
-                let mut wrong_side = 0usize;
-                for j in (0..n).filter(|&j| j != i) {
-                    let cam_j_base = x_inv * self.t_base_ee[j].inverse();
-                    let t = cam_j_base * base_cam_i;
-                    let r = *t.rotation.to_rotation_matrix().matrix();
-                    let tv = t.translation.vector;
+                for (j, pt) in pairs.iter().enumerate().filter(|&(j, _)| j != i) {
+                    let MatrixMap { r, t: tv } = map(i, j);
                     let r_minus_i = r - Matrix3::identity();
-                    let r_cj = *cam_j_base.rotation.to_rotation_matrix().matrix();
-                    let target = Target {
-                        depth: &self.depths[j],
-                        intr: self.intr,
-                        size,
-                    };
+                    let r_cj = *cam_base(j).rotation.to_rotation_matrix().matrix();
                     let mut block = Matrix6::zeros();
-                    for (p, np) in fp.points.iter().zip(&fp.normals) {
+                    for f in &pt.hits {
+                        let (p, nj) = (&fp.points[f.k as usize], &f.nj);
                         let q = r * p + tv;
-                        let test =
-                            test_point(&target, self.cfg, a, &r, (p, np), &q, |_, _, _, _| true);
-                        let Some((nj, _, sigma, wk)) = test.hit(&mut wrong_side) else {
-                            continue;
-                        };
-                        let jrow = hand_eye_row(&nj, &q, p, &r, &r_minus_i);
+                        let jrow = hand_eye_row(nj, &q, p, &r, &r_minus_i);
                         // The point in the base, about the centre: frame i's increment moves it by
                         // ω × (y − c) + v, seen in camera j through its rotation.
                         let y = (base_cam_i * nalgebra::Point3::from(*p)).coords - centre;
                         let nb = r_cj.transpose() * nj;
                         let ew = y.cross(&nb);
                         let erow = RowVector6::new(ew[0], ew[1], ew[2], nb[0], nb[1], nb[2]);
-                        block += jrow.transpose() * erow * (wk / (sigma * sigma));
+                        block += jrow.transpose() * erow * (f.weight / (f.sigma * f.sigma));
                     }
                     own += block;
                     // Frame j's increment moves its camera, and the point the other way.
@@ -407,12 +525,15 @@ impl Problem<'_> {
 impl Problem<'_> {
     /// The per-frame sums under hand-eye `x` (frame order, deterministic at any thread count).
     pub(crate) fn sums(&self, x: &Isometry3<f64>, a: &Association) -> Vec<FrameSums> {
-        let n = self.frames();
         let x_inv = x.inverse();
-        let size = (self.intr.width as f64, self.intr.height as f64);
-        (0..n)
+        let map = |i: usize, j: usize| {
+            MatrixMap::of(&(x_inv * self.t_base_ee[j].inverse() * self.t_base_ee[i] * x))
+        };
+        let tests = self.test_pairs(a, map);
+        tests
             .into_par_iter()
-            .map(|i| {
+            .enumerate()
+            .map(|(i, pairs)| {
                 let mut s = FrameSums::default();
                 let fp = &self.points[i];
                 if fp.points.is_empty() {
@@ -420,31 +541,21 @@ impl Problem<'_> {
                 }
                 let mut used = vec![false; fp.points.len()];
                 let mut h = OuterSum6::default();
-                for j in (0..n).filter(|&j| j != i) {
-                    let t = x_inv * self.t_base_ee[j].inverse() * self.t_base_ee[i] * x;
-                    let r = *t.rotation.to_rotation_matrix().matrix();
-                    let tv = t.translation.vector;
+                for (j, pt) in pairs.iter().enumerate().filter(|&(j, _)| j != i) {
+                    let MatrixMap { r, t: tv } = map(i, j);
                     let r_minus_i = r - Matrix3::identity();
-                    let target = Target {
-                        depth: &self.depths[j],
-                        intr: self.intr,
-                        size,
-                    };
-                    for (k, (p, np)) in fp.points.iter().zip(&fp.normals).enumerate() {
+                    s.wrong_side += pt.wrong_side;
+                    for f in &pt.hits {
+                        let p = &fp.points[f.k as usize];
                         let q = r * p + tv;
-                        let test =
-                            test_point(&target, self.cfg, a, &r, (p, np), &q, |_, _, _, _| true);
-                        let Some((nj, res, sigma, wk)) = test.hit(&mut s.wrong_side) else {
-                            continue;
-                        };
-                        let jrow = hand_eye_row(&nj, &q, p, &r, &r_minus_i);
-                        let ws = wk / (sigma * sigma);
+                        let jrow = hand_eye_row(&f.nj, &q, p, &r, &r_minus_i);
+                        let ws = f.weight / (f.sigma * f.sigma);
                         h.add(&jrow.transpose(), ws);
-                        s.g += jrow.transpose() * (res * ws);
-                        s.chi2 += wk * (res / sigma).powi(2);
-                        s.weight += wk;
-                        s.abs.push(res.abs() as f32);
-                        used[k] = true;
+                        s.g += jrow.transpose() * (f.res * ws);
+                        s.chi2 += f.weight * (f.res / f.sigma).powi(2);
+                        s.weight += f.weight;
+                        s.abs.push(f.res.abs() as f32);
+                        used[f.k as usize] = true;
                     }
                 }
                 s.h = h.matrix();
@@ -542,5 +653,205 @@ mod tests {
             chi2b / (nb as f64) < 0.2 * chi2 / (n as f64),
             "{chi2} / {n} -> {chi2b} / {nb}"
         );
+    }
+
+    /// The tests run camera by camera ([`Problem::test_pairs`]) are those of the frame-by-frame loop,
+    /// bit for bit and in sample order: four cameras over a slanted plane with a raised patch (depth
+    /// steps) and holes, under a hand-eye slightly off, so that points hit, miss and fall on the wrong
+    /// side.
+    #[test]
+    fn pairs_tested_by_camera_are_the_frame_by_frame_tests() {
+        let intr = Intrinsics::pinhole(160, 120, 120.0, 120.0, 79.5, 59.5);
+        let cfg = ConsistencyConfig {
+            sample_points: 300,
+            ..ConsistencyConfig::default()
+        };
+        let x = Isometry3::new(
+            Vector3::new(0.02, -0.03, 0.05),
+            Vector3::new(0.1, -0.05, 0.3),
+        );
+        let poses: Vec<Isometry3<f64>> = (0..4)
+            .map(|k| {
+                let k = k as f64;
+                Isometry3::new(
+                    Vector3::new(0.03 * k, 0.01 * k, -0.01 * k),
+                    Vector3::new(0.05 * k, 0.12 - 0.06 * k, 0.2 * k),
+                )
+            })
+            .collect();
+        let mut intr4 = intr.clone();
+        intr4.depth_scale = 1e-4;
+        let views: Vec<DepthView> = poses
+            .iter()
+            .map(|t_base_ee| {
+                let t_base_cam = t_base_ee * x;
+                let mut img = DepthImage::zeros(160, 120);
+                let n = Vector3::new(-0.2, 0.0, 1.0);
+                let o = t_base_cam.translation.vector;
+                for v in 0..120u32 {
+                    for u in 0..160u32 {
+                        if (u / 13 + v / 11) % 7 == 0 {
+                            continue; // holes
+                        }
+                        let d = intr.deproject([u as f64, v as f64], 1.0);
+                        let ray = t_base_cam.rotation * Vector3::new(d[0], d[1], d[2]);
+                        let mut t = (0.6 - n.dot(&o)) / n.dot(&ray);
+                        let hit = o + ray * t;
+                        if hit.x.abs() < 0.08 && hit.y.abs() < 0.05 {
+                            t *= 0.97 + 1.2 * hit.x; // a ramp through the plane
+                        }
+                        img.data[(v * 160 + u) as usize] = (t * 1e4).round() as u16;
+                    }
+                }
+                DepthView::new(&img, &intr4, &t_base_cam, 4)
+            })
+            .collect();
+        let problem = Problem::new(poses.clone(), &views, &intr4, &cfg);
+        let a = Association {
+            gate_m: 0.02,
+            // Strict enough that the blocks' normal noise sends some tests to the wrong side.
+            min_normal_cos: 0.9998,
+            kernel: RobustKernel::Huber,
+            kernel_sigmas: 1.0,
+        };
+        let x1 = x * Isometry3::new(
+            Vector3::new(0.004, 0.002, -0.003),
+            Vector3::new(0.01, -0.02, 0.015),
+        );
+        let map = |i: usize, j: usize| {
+            MatrixMap::of(&(x1.inverse() * poses[j].inverse() * poses[i] * x1))
+        };
+        let got = problem.test_pairs(&a, map);
+        let size = (160.0, 120.0);
+        let (mut hits, mut wrong, mut misses) = (0, 0, 0);
+        for (i, row) in got.iter().enumerate() {
+            assert_eq!(row.len(), 4);
+            for (j, pair) in row.iter().enumerate() {
+                let mut want = PairTests::default();
+                if i != j {
+                    let m = map(i, j);
+                    let target = Target {
+                        depth: &problem.depths[j],
+                        intr: &intr4,
+                        size,
+                    };
+                    let fp = &problem.points[i];
+                    for (k, (p, np)) in fp.points.iter().zip(&fp.normals).enumerate() {
+                        let q = m.apply(p);
+                        match test_point(&target, &cfg, &a, &m.r, (p, np), &q, |_, _, _, _| true) {
+                            PointTest::Hit {
+                                nj,
+                                res,
+                                sigma,
+                                weight,
+                            } => want.hits.push(Found {
+                                k: k as u32,
+                                nj,
+                                res,
+                                sigma,
+                                weight,
+                            }),
+                            PointTest::WrongSide => want.wrong_side += 1,
+                            PointTest::Miss => misses += 1,
+                        }
+                    }
+                }
+                let bits = |t: &PairTests| -> Vec<(u32, [u64; 6])> {
+                    t.hits
+                        .iter()
+                        .map(|f| {
+                            let b = [f.nj.x, f.nj.y, f.nj.z, f.res, f.sigma, f.weight];
+                            (f.k, b.map(f64::to_bits))
+                        })
+                        .collect()
+                };
+                assert_eq!(bits(pair), bits(&want), "frames {i} -> {j}");
+                assert_eq!(pair.wrong_side, want.wrong_side, "frames {i} -> {j}");
+                hits += want.hits.len();
+                wrong += want.wrong_side;
+            }
+        }
+        assert!(
+            hits > 500 && wrong > 5 && misses > 100,
+            "{hits} hits, {wrong} wrong side, {misses} misses"
+        );
+    }
+
+    /// `surface_at` (axes shared among its five lookups, rays without a call where there is no
+    /// distortion) is the plain five lookups and deprojections, bit for bit: a slanted plane with holes and
+    /// a rough patch, at random pixels inside and beyond the edges, for a pinhole, a Brown-Conrady camera
+    /// without and with terms and a Kannala-Brandt one.
+    #[test]
+    fn surface_at_is_five_plain_lookups() {
+        use crate::camera::DistortionModel;
+        let reference = |depth: &SmoothDepth, intr: &Intrinsics, u: f64, v: f64| {
+            let smooth = |u: f64, v: f64| -> Option<Vector3<f64>> {
+                let (near, far) = depth.depth(u, v)?;
+                if far - near > 1e-9 || near <= 0.0 {
+                    return None;
+                }
+                let p = intr.deproject([u, v], near);
+                Some(Vector3::new(p[0], p[1], p[2]))
+            };
+            let b = depth.view.block as f64;
+            let p = smooth(u, v)?;
+            let du = smooth(u + b, v)? - smooth(u - b, v)?;
+            let dv = smooth(u, v + b)? - smooth(u, v - b)?;
+            let n = du.cross(&dv);
+            let len = n.norm();
+            if len.is_nan() || len <= 0.0 {
+                return None;
+            }
+            let n = n / len;
+            Some((p, if n.dot(&p) > 0.0 { -n } else { n }))
+        };
+        let mut img = DepthImage::zeros(64, 48);
+        for v in 0..48u32 {
+            for u in 0..64u32 {
+                img.data[(v * 64 + u) as usize] = if (u / 9 + v / 7) % 5 == 0 {
+                    0
+                } else if u < 40 {
+                    800 + 3 * u + 2 * v
+                } else {
+                    1500 + 300 * ((u + v) % 2)
+                } as u16;
+            }
+        }
+        let cfg = ConsistencyConfig::default();
+        let cameras = [
+            (DistortionModel::None, [0.0; 5]),
+            (DistortionModel::BrownConrady, [0.0; 5]),
+            (
+                DistortionModel::BrownConrady,
+                [0.1, -0.2, 0.001, -0.002, 0.05],
+            ),
+            (DistortionModel::KannalaBrandt4, [0.0; 5]),
+        ];
+        for (model, coeffs) in cameras {
+            let intr = Intrinsics {
+                model,
+                coeffs,
+                ..Intrinsics::pinhole(64, 48, 50.0, 52.0, 31.2, 23.7)
+            };
+            let view = DepthView::new(&img, &intr, &Isometry3::identity(), 4);
+            let depth = SmoothDepth::new(&view, &cfg);
+            let mut rng = crate::geometry::rng::Rng::new(11);
+            let mut r = move || rng.next_f64();
+            let bits = |x: Option<(Vector3<f64>, Vector3<f64>)>| {
+                x.map(|(p, n)| [p.x, p.y, p.z, n.x, n.y, n.z].map(f64::to_bits))
+            };
+            let mut found = 0;
+            for _ in 0..20_000 {
+                let (u, v) = (r() * 72.0 - 4.0, r() * 56.0 - 4.0);
+                let want = reference(&depth, &intr, u, v);
+                found += want.is_some() as usize;
+                assert_eq!(
+                    bits(surface_at(&depth, &intr, u, v)),
+                    bits(want),
+                    "({u}, {v}), {model:?}"
+                );
+            }
+            assert!(found > 2000, "{found} surfaces, {model:?}");
+        }
     }
 }
