@@ -229,16 +229,74 @@ impl Soa {
 /// Lanes of the chunked loops below.
 const LANES: usize = 16;
 
-/// The consistency graph: `adj[i]` lists (ascending) the matches whose pairwise length agrees with
-/// match `i`. Each row is tested in full, in parallel (the test is symmetric bit for bit, so this is the
-/// graph of testing each pair once and mirroring it), 16 matches at a time, with branch-free appends.
-fn consistency_graph(ps: &[[f32; 3]], qs: &[[f32; 3]], tol: f32, min_len: f32) -> Vec<Vec<u32>> {
+/// The consistency graph ([`consistency_graph`]): one row of bits per match, bit `j` of row `i` set when
+/// match `j`'s lengths to match `i`'s agree (symmetric, no self-loops). Bits rather than lists: the rows
+/// are filled without appends (a graph of 8.7k matches has 12M edges, 50 MB as lists and 9.5 MB as
+/// bits), a membership test is one bit, and counting a row's neighbours in a set is a popcount.
+#[derive(Default)]
+struct Graph {
+    /// 64-bit words per row.
+    words: usize,
+    bits: Vec<u64>,
+    degree: Vec<u32>,
+}
+
+impl Graph {
+    /// The number of matches (rows).
+    fn len(&self) -> usize {
+        self.degree.len()
+    }
+
+    /// Row `i`'s words.
+    fn row(&self, i: usize) -> &[u64] {
+        &self.bits[i * self.words..(i + 1) * self.words]
+    }
+
+    /// The neighbours of `i`.
+    fn degree(&self, i: usize) -> usize {
+        self.degree[i] as usize
+    }
+
+    /// `i` and `j` agree.
+    fn contains(&self, i: usize, j: usize) -> bool {
+        self.row(i)[j / 64] >> (j % 64) & 1 == 1
+    }
+
+    /// The `k`-th neighbour of `i` in ascending order (`k < degree(i)`).
+    fn nth(&self, i: usize, mut k: usize) -> usize {
+        for (w, &word) in self.row(i).iter().enumerate() {
+            let c = word.count_ones() as usize;
+            if k < c {
+                let mut x = word;
+                for _ in 0..k {
+                    x &= x - 1;
+                }
+                return w * 64 + x.trailing_zeros() as usize;
+            }
+            k -= c;
+        }
+        panic!("neighbour {k} beyond the degree of {i}")
+    }
+
+    /// The neighbours of `i`, ascending.
+    #[cfg(test)]
+    fn neighbours(&self, i: usize) -> Vec<u32> {
+        (0..self.degree(i)).map(|k| self.nth(i, k) as u32).collect()
+    }
+}
+
+/// The consistency graph of the matches `(ps[i], qs[i])`: `i` and `j` agree when their lengths in both
+/// clouds differ by less than `tol` and both exceed `min_len`. Each row is tested in full, in parallel
+/// (the test is symmetric bit for bit, so this is the graph of testing each pair once and mirroring it),
+/// 16 matches at a time into the row's bits.
+fn consistency_graph(ps: &[[f32; 3]], qs: &[[f32; 3]], tol: f32, min_len: f32) -> Graph {
     let n = ps.len();
+    let words = n.div_ceil(64);
     let (p, q) = (Soa::new(ps), Soa::new(qs));
     let min2 = min_len * min_len;
-    // Matches `start..start + LANES` against match `i` (whose points are `pi`, `qi`): appends those whose
-    // lengths agree, except `i` itself.
-    let lanes = |i: usize, pi: &[f32; 3], qi: &[f32; 3], start: usize, row: &mut Vec<u32>| {
+    // Matches `start..start + LANES` against match `i` (whose points are `pi`, `qi`): the agreeing ones as
+    // bits.
+    let lanes = |pi: &[f32; 3], qi: &[f32; 3], start: usize| -> u64 {
         let r = start..start + LANES;
         let lane = |v: &[f32]| -> [f32; LANES] { v[r.clone()].try_into().expect("full lane") };
         let (px, py, pz) = (lane(&p.x), lane(&p.y), lane(&p.z));
@@ -248,38 +306,35 @@ fn consistency_graph(ps: &[[f32; 3]], qs: &[[f32; 3]], tol: f32, min_len: f32) -
             let (pj, qj) = ([px[k], py[k], pz[k]], [qx[k], qy[k], qz[k]]);
             ok[k] = edge_agrees(&pj, &qj, pi, qi, tol, min2);
         }
-        // The agreeing lanes as bits, appended by their set bits (about one pair in six agrees: a branch
-        // per pair would mispredict).
-        let mut mask = 0u32;
+        let mut mask = 0u64;
         for (k, &o) in ok.iter().enumerate() {
-            mask |= (o as u32) << k;
+            mask |= (o as u64) << k;
         }
-        if (start..start + LANES).contains(&i) {
-            mask &= !(1 << (i - start));
-        }
-        row.reserve(LANES);
-        while mask != 0 {
-            row.push((start + mask.trailing_zeros() as usize) as u32);
-            mask &= mask - 1;
-        }
+        mask
     };
-    (0..n)
-        .into_par_iter()
-        .map(|i| {
+    let mut bits = vec![0u64; n * words];
+    let degree: Vec<u32> = bits
+        .par_chunks_mut(words.max(1))
+        .take(n)
+        .enumerate()
+        .map(|(i, row)| {
             let (pi, qi) = (&ps[i], &qs[i]);
-            let mut row = Vec::new();
             let full = n - n % LANES;
             for start in (0..full).step_by(LANES) {
-                lanes(i, pi, qi, start, &mut row);
+                row[start / 64] |= lanes(pi, qi, start) << (start % 64);
             }
-            row.extend(
-                (full..n)
-                    .filter(|&j| j != i && edge_agrees(&ps[j], &qs[j], pi, qi, tol, min2))
-                    .map(|j| j as u32),
-            );
-            row
+            for j in full..n {
+                row[j / 64] |= (edge_agrees(&ps[j], &qs[j], pi, qi, tol, min2) as u64) << (j % 64);
+            }
+            row[i / 64] &= !(1u64 << (i % 64));
+            row.iter().map(|w| w.count_ones()).sum()
         })
-        .collect()
+        .collect();
+    Graph {
+        words,
+        bits,
+        degree,
+    }
 }
 
 /// `x²` (as `powi(2)`, which does not vectorise).
@@ -487,7 +542,7 @@ impl Matches {
 /// to its degree, the others among its neighbours) or uniformly.
 struct Sampler {
     guided: bool,
-    graph: Vec<Vec<u32>>,
+    graph: Graph,
     /// Cumulative degree, for degree-proportional draws of the first match.
     cum: Vec<u64>,
     total_degree: u64,
@@ -501,12 +556,11 @@ impl Sampler {
         let graph = if guided {
             consistency_graph(&m.ps, &m.qs, 2.0 * m.tau as f32, m.tau as f32)
         } else {
-            Vec::new()
+            Graph::default()
         };
-        let cum: Vec<u64> = graph
-            .iter()
+        let cum: Vec<u64> = (0..graph.len())
             .scan(0u64, |s, a| {
-                *s += a.len().saturating_sub(1) as u64;
+                *s += graph.degree(a).saturating_sub(1) as u64;
                 Some(*s)
             })
             .collect();
@@ -526,16 +580,16 @@ impl Sampler {
         if self.guided {
             let r = rng.next_u64() % self.total_degree;
             let a = self.cum.partition_point(|&x| x <= r);
-            let nb = &self.graph[a];
-            if nb.len() < 2 {
+            let deg = self.graph.degree(a);
+            if deg < 2 {
                 return None;
             }
-            let b = nb[rng.below(nb.len())] as usize;
+            let b = self.graph.nth(a, rng.below(deg));
             if k == 2 {
                 return Some([a, b, b]);
             }
-            let c = nb[rng.below(nb.len())] as usize;
-            if b == c || self.graph[b].binary_search(&(c as u32)).is_err() {
+            let c = self.graph.nth(a, rng.below(deg));
+            if b == c || !self.graph.contains(b, c) {
                 return None;
             }
             Some([a, b, c])
@@ -752,26 +806,30 @@ fn guided_success_probability(
     ps: &[[f32; 3]],
     qs: &[[f32; 3]],
     tau2: f32,
-    graph: &[Vec<u32>],
+    graph: &Graph,
     total_degree: u64,
     two_point: bool,
 ) -> f64 {
-    let inlier: Vec<bool> = ps
-        .iter()
-        .zip(qs)
-        .map(|(p, q)| {
-            let tp = transform_point(t, p);
-            (tp[0] - q[0]).powi(2) + (tp[1] - q[1]).powi(2) + (tp[2] - q[2]).powi(2) < tau2
-        })
-        .collect();
+    let mut inlier = vec![0u64; graph.words];
+    for (j, (p, q)) in ps.iter().zip(qs).enumerate() {
+        let tp = transform_point(t, p);
+        let ok = (tp[0] - q[0]).powi(2) + (tp[1] - q[1]).powi(2) + (tp[2] - q[2]).powi(2) < tau2;
+        inlier[j / 64] |= (ok as u64) << (j % 64);
+    }
     let mut p = 0.0;
-    for (i, nb) in graph.iter().enumerate() {
-        if !inlier[i] || nb.len() < 2 {
+    for i in 0..graph.len() {
+        let n = graph.degree(i);
+        if inlier[i / 64] >> (i % 64) & 1 == 0 || n < 2 {
             continue;
         }
-        let deg = nb.len() as f64;
-        let good = nb.iter().filter(|&&j| inlier[j as usize]).count() as f64;
-        let p_first = (nb.len() - 1) as f64 / total_degree as f64;
+        let deg = n as f64;
+        let good = graph
+            .row(i)
+            .iter()
+            .zip(&inlier)
+            .map(|(a, b)| (a & b).count_ones())
+            .sum::<u32>() as f64;
+        let p_first = (n - 1) as f64 / total_degree as f64;
         // The further draws inlier (for triples, their mutual consistency is then almost sure).
         p += if two_point {
             p_first * (good / deg)
@@ -854,7 +912,8 @@ mod tests {
     }
 
     /// The row-parallel graph is the graph of testing each pair once and mirroring it (the oracle), with
-    /// ascending rows and no self-loops, for sizes with and without a partial last lane.
+    /// ascending rows and no self-loops, for sizes with and without a partial last lane and word; its
+    /// degrees, membership tests and `nth` neighbours agree with the lists.
     #[test]
     fn consistency_graph_matches_the_pairwise_oracle() {
         let mut s = 7u64;
@@ -864,7 +923,7 @@ mod tests {
                 .wrapping_add(1442695040888963407);
             (s >> 40) as f32 / (1u64 << 24) as f32
         };
-        for n in [0, 1, 15, 16, 17, 203] {
+        for n in [0, 1, 15, 16, 17, 64, 65, 203] {
             let ps: Vec<[f32; 3]> = (0..n).map(|_| [r(), r(), r()]).collect();
             // Half the matches are the source moved rigidly (consistent), half noise.
             let qs: Vec<[f32; 3]> = ps
@@ -879,7 +938,14 @@ mod tests {
                 })
                 .collect();
             let (tol, min_len) = (0.05f32, 0.02f32);
-            let g = consistency_graph(&ps, &qs, tol, min_len);
+            let graph = consistency_graph(&ps, &qs, tol, min_len);
+            let g: Vec<Vec<u32>> = (0..graph.len()).map(|i| graph.neighbours(i)).collect();
+            for (i, row) in g.iter().enumerate() {
+                assert_eq!(graph.degree(i), row.len());
+                for j in 0..n {
+                    assert_eq!(graph.contains(i, j), row.binary_search(&(j as u32)).is_ok());
+                }
+            }
             let mut oracle = vec![Vec::new(); n];
             for i in 0..n {
                 for j in i + 1..n {
