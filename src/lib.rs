@@ -34,6 +34,7 @@ pub mod profile;
 pub mod registration;
 pub mod report;
 pub mod sim;
+mod simd;
 pub mod stats;
 pub mod tempfiles;
 pub mod timing;

@@ -261,13 +261,18 @@ fn normal_equations(
             let mut out = Vec::new();
             let mut stats = Stats::default();
             let mut used = vec![false; fp.points.len()];
+            // Each sampled point about the centre, once (not once per other frame that sees it).
+            let about_centre: Vec<Vector3<f64>> = fp
+                .points
+                .iter()
+                .map(|p| (cams[i] * nalgebra::Point3::from(*p)).coords - centre)
+                .collect();
             for (j, pt) in pairs.iter().enumerate().filter(|&(j, _)| j != i) {
                 let rj = *cams[j].rotation.to_rotation_matrix().matrix();
                 let (mut h, mut g, mut k) = (OuterSum6::default(), Vector6::zeros(), 0usize);
                 for f in &pt.hits {
-                    let p = &fp.points[f.k as usize];
                     let big_n = rj * f.nj;
-                    let pc = (cams[i] * nalgebra::Point3::from(*p)).coords - centre;
+                    let pc = &about_centre[f.k as usize];
                     let jw = pc.cross(&big_n);
                     let row = Vector6::new(jw.x, jw.y, jw.z, big_n.x, big_n.y, big_n.z);
                     let ws = f.weight / (f.sigma * f.sigma);

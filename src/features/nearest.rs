@@ -120,42 +120,9 @@ fn scan_generic(rows: &[Fpfh], base: u32, blocks: &[Block], nb: usize) -> (Vec<N
 
 type ColBest = (Vec<[f32; L]>, Vec<[u32; L]>);
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn scan_avx2(
-    rows: &[Fpfh],
-    base: u32,
-    blocks: &[Block],
-    nb: usize,
-) -> (Vec<Nearest>, ColBest) {
-    scan_generic(rows, base, blocks, nb)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn scan_avx512(
-    rows: &[Fpfh],
-    base: u32,
-    blocks: &[Block],
-    nb: usize,
-) -> (Vec<Nearest>, ColBest) {
-    scan_generic(rows, base, blocks, nb)
-}
-
-fn scan(rows: &[Fpfh], base: u32, blocks: &[Block], nb: usize) -> (Vec<Nearest>, ColBest) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the CPU supports the features the function was compiled for.
-            return unsafe { scan_avx512(rows, base, blocks, nb) };
-        }
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
-            // SAFETY: the CPU supports the features the function was compiled for.
-            return unsafe { scan_avx2(rows, base, blocks, nb) };
-        }
-    }
-    scan_generic(rows, base, blocks, nb)
+crate::simd::dispatch_simd! {
+    /// [`scan_generic`] with the widest vector instructions the CPU has.
+    fn scan(rows: &[Fpfh], base: u32, blocks: &[Block], nb: usize) -> (Vec<Nearest>, ColBest) = scan_generic;
 }
 
 /// For each descriptor of `a`, its nearest (and second-nearest) in `b`; for each descriptor of `b`, its

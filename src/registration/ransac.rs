@@ -294,9 +294,32 @@ fn consistency_graph(ps: &[[f32; 3]], qs: &[[f32; 3]], tol: f32, min_len: f32) -
     let words = n.div_ceil(64);
     let (p, q) = (Soa::new(ps), Soa::new(qs));
     let min2 = min_len * min_len;
-    // Matches `start..start + LANES` against match `i` (whose points are `pi`, `qi`): the agreeing ones as
-    // bits.
-    let lanes = |pi: &[f32; 3], qi: &[f32; 3], start: usize| -> u64 {
+    let mut bits = vec![0u64; n * words];
+    let degree: Vec<u32> = bits
+        .par_chunks_mut(words.max(1))
+        .take(n)
+        .enumerate()
+        .map(|(i, row)| graph_row(&p, &q, i, (tol, min2), row))
+        .collect();
+    Graph {
+        words,
+        bits,
+        degree,
+    }
+}
+
+crate::simd::dispatch_simd! {
+    /// Row `i` of the consistency graph of the matches `(p, q)` (`limits`: the tolerance and the squared
+    /// least length) into `row`'s bits, 16 matches at a time; returns its degree.
+    fn graph_row(p: &Soa, q: &Soa, i: usize, limits: (f32, f32), row: &mut [u64]) -> u32 = graph_row_generic;
+}
+
+#[inline(always)]
+fn graph_row_generic(p: &Soa, q: &Soa, i: usize, (tol, min2): (f32, f32), row: &mut [u64]) -> u32 {
+    let n = p.x.len();
+    let (pi, qi) = ([p.x[i], p.y[i], p.z[i]], [q.x[i], q.y[i], q.z[i]]);
+    let full = n - n % LANES;
+    for start in (0..full).step_by(LANES) {
         let r = start..start + LANES;
         let lane = |v: &[f32]| -> [f32; LANES] { v[r.clone()].try_into().expect("full lane") };
         let (px, py, pz) = (lane(&p.x), lane(&p.y), lane(&p.z));
@@ -304,37 +327,20 @@ fn consistency_graph(ps: &[[f32; 3]], qs: &[[f32; 3]], tol: f32, min_len: f32) -
         let mut ok = [false; LANES];
         for k in 0..LANES {
             let (pj, qj) = ([px[k], py[k], pz[k]], [qx[k], qy[k], qz[k]]);
-            ok[k] = edge_agrees(&pj, &qj, pi, qi, tol, min2);
+            ok[k] = edge_agrees(&pj, &qj, &pi, &qi, tol, min2);
         }
         let mut mask = 0u64;
         for (k, &o) in ok.iter().enumerate() {
             mask |= (o as u64) << k;
         }
-        mask
-    };
-    let mut bits = vec![0u64; n * words];
-    let degree: Vec<u32> = bits
-        .par_chunks_mut(words.max(1))
-        .take(n)
-        .enumerate()
-        .map(|(i, row)| {
-            let (pi, qi) = (&ps[i], &qs[i]);
-            let full = n - n % LANES;
-            for start in (0..full).step_by(LANES) {
-                row[start / 64] |= lanes(pi, qi, start) << (start % 64);
-            }
-            for j in full..n {
-                row[j / 64] |= (edge_agrees(&ps[j], &qs[j], pi, qi, tol, min2) as u64) << (j % 64);
-            }
-            row[i / 64] &= !(1u64 << (i % 64));
-            row.iter().map(|w| w.count_ones()).sum()
-        })
-        .collect();
-    Graph {
-        words,
-        bits,
-        degree,
+        row[start / 64] |= mask << (start % 64);
     }
+    for j in full..n {
+        let (pj, qj) = ([p.x[j], p.y[j], p.z[j]], [q.x[j], q.y[j], q.z[j]]);
+        row[j / 64] |= (edge_agrees(&pj, &qj, &pi, &qi, tol, min2) as u64) << (j % 64);
+    }
+    row[i / 64] &= !(1u64 << (i % 64));
+    row.iter().map(|w| w.count_ones()).sum()
 }
 
 /// `x²` (as `powi(2)`, which does not vectorise).
@@ -345,7 +351,7 @@ fn sq(x: f32) -> f32 {
 
 /// [`consistency_graph`]'s test: match `j`'s lengths to match `i`'s points agree within `tol`, both
 /// longer than `√min2`.
-#[inline]
+#[inline(always)]
 fn edge_agrees(
     pj: &[f32; 3],
     qj: &[f32; 3],
@@ -749,8 +755,13 @@ impl From<&Isometry3<f64>> for Affine32 {
     }
 }
 
-/// Number of pairs `(p, q)` with `‖m·p − q‖² < tau2`.
-fn m_count(m: &Affine32, p: &Soa, q: &Soa, tau2: f32) -> usize {
+crate::simd::dispatch_simd! {
+    /// Number of pairs `(p, q)` with `‖m·p − q‖² < tau2`.
+    fn m_count(m: &Affine32, p: &Soa, q: &Soa, tau2: f32) -> usize = m_count_generic;
+}
+
+#[inline(always)]
+fn m_count_generic(m: &Affine32, p: &Soa, q: &Soa, tau2: f32) -> usize {
     let a = &m.0;
     let mut total = 0usize;
     let chunks =

@@ -342,18 +342,31 @@ impl<K: PartialEq, V: Clone> Memo<K, V> {
 
     /// The value kept for `key`, else `eval()` (then kept).
     pub(crate) fn get_or(&self, key: K, eval: impl FnOnce() -> V) -> V {
-        let kept = |e: &[(K, V)]| e.iter().find(|(k, _)| *k == key).map(|(_, v)| v.clone());
-        if let Some(v) = kept(&self.entries.lock().unwrap_or_else(|e| e.into_inner())) {
+        if let Some(v) = self.get(&key) {
             return v;
         }
         // Evaluated without the lock held (the evaluation runs in parallel).
         let v = eval();
+        self.put(key, v.clone());
+        v
+    }
+
+    /// The value kept for `key`.
+    pub(crate) fn get(&self, key: &K) -> Option<V> {
+        let entries = self.entries.lock().unwrap_or_else(|e| e.into_inner());
+        entries
+            .iter()
+            .find(|(k, _)| k == key)
+            .map(|(_, v)| v.clone())
+    }
+
+    /// Keeps `v` for `key` (dropping the second-oldest entry when full: the first is the start's).
+    pub(crate) fn put(&self, key: K, v: V) {
         let mut entries = self.entries.lock().unwrap_or_else(|e| e.into_inner());
         if entries.len() == self.cap {
             entries.remove(1);
         }
-        entries.push((key, v.clone()));
-        v
+        entries.push((key, v));
     }
 }
 
@@ -362,6 +375,26 @@ impl Solver<'_> {
     fn sums(&self, x: &Isometry3<f64>, gate: f64) -> Vec<FrameSums> {
         self.memo
             .get_or((*x, gate), || self.problem.sums(x, &(self.assoc)(gate)))
+    }
+
+    /// The sums at `x` with the last gate, which the covariance uses. Evaluated (when not kept) in one
+    /// run of the tests together with the first gate's, which the residuals after the fit are reported
+    /// with: the fit ends where the covariance is taken.
+    fn final_sums(&self, x: &Isometry3<f64>) -> Vec<FrameSums> {
+        let gates = &self.cfg.gates_m;
+        let (first, last) = (gates[0], *gates.last().unwrap_or(&0.01));
+        if let Some(v) = self.memo.get(&(*x, last)) {
+            return v;
+        }
+        if first == last || self.memo.get(&(*x, first)).is_some() {
+            return self.sums(x, last);
+        }
+        let wide = (self.assoc)(first.max(last));
+        let mut both = self.problem.sums_at_gates(x, &wide, &[first, last]);
+        let at_last = both.pop().expect("two gates");
+        self.memo.put((*x, first), both.pop().expect("two gates"));
+        self.memo.put((*x, last), at_last.clone());
+        at_last
     }
 
     fn scale(&self) -> Matrix6<f64> {
@@ -475,7 +508,7 @@ impl Solver<'_> {
     /// at the finest gate, and the frames with tests.
     fn covariance(&self, x: &Isometry3<f64>) -> (Matrix6<f64>, usize, usize, usize) {
         let cfg = self.cfg;
-        let sums = self.sums(x, *cfg.gates_m.last().unwrap_or(&0.01));
+        let sums = self.final_sums(x);
         let (h, _, chi2, weight, tests) = total(&sums);
         let wrong_side: usize = sums.iter().map(|s| s.wrong_side).sum();
         let (_, h_pinv, _) = solve(&h, &Vector6::zeros(), self.l, cfg.null_ratio);

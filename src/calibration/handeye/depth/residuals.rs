@@ -60,17 +60,19 @@ pub(crate) fn surface_at(
 }
 
 /// A test's row for the hand-eye change `[ω, v]` (camera frame): the point `p` of one frame, moved into the
-/// other camera as `q = r·p + t`, against the surface normal `nj` there; `r_minus_i` is `r − I`.
+/// other camera as `q = r·p + t`, against the surface normal `nj` there. The row is
+/// `njᵀ [ [q]× − r [p]×,  r − I ]`; with `a = rᵀ nj` and `uᵀ [w]× = (u × w)ᵀ` that is
+/// `[ nj × q − a × p,  a − nj ]` (two cross products instead of a 3x3 matrix product per test).
 #[inline]
 fn hand_eye_row(
     nj: &Vector3<f64>,
     q: &Vector3<f64>,
     p: &Vector3<f64>,
     r: &Matrix3<f64>,
-    r_minus_i: &Matrix3<f64>,
 ) -> RowVector6<f64> {
-    let jw = nj.transpose() * (skew(q) - r * skew(p));
-    let jv = nj.transpose() * r_minus_i;
+    let a = r.tr_mul(nj);
+    let jw = nj.cross(q) - a.cross(p);
+    let jv = a - nj;
     RowVector6::new(jw[0], jw[1], jw[2], jv[0], jv[1], jv[2])
 }
 
@@ -264,8 +266,8 @@ pub(crate) struct Target<'a> {
 pub(crate) enum PointTest {
     /// Behind the camera, outside the image, no smooth surface there, beyond the gate, or refused.
     Miss,
-    /// Refused by the side-of-surface rule.
-    WrongSide,
+    /// Refused by the side-of-surface rule, with its point-to-plane residual (m).
+    WrongSide { res: f64 },
     /// A test: the surface's unit normal `nj`, the point-to-plane residual (m), its 1-σ (m) and the
     /// robust kernel's weight.
     Hit {
@@ -308,7 +310,7 @@ pub(crate) fn test_point(
     // camera saw does.
     let ni = r * np;
     if ni.dot(&nj) < asn.min_normal_cos || ni.dot(q) > 0.0 {
-        return PointTest::WrongSide;
+        return PointTest::WrongSide { res };
     }
     let sigma = (point_cfg.sigma(p.z).powi(2) + t.depth.cfg.sigma(pj.z).powi(2))
         .sqrt()
@@ -329,7 +331,7 @@ impl PointTest {
     pub(crate) fn hit(self, wrong_side: &mut usize) -> Option<(Vector3<f64>, f64, f64, f64)> {
         match self {
             PointTest::Miss => None,
-            PointTest::WrongSide => {
+            PointTest::WrongSide { .. } => {
                 *wrong_side += 1;
                 None
             }
@@ -389,12 +391,12 @@ pub(crate) struct Found {
     pub(crate) weight: f64,
 }
 
-/// The tests of one frame's sampled points in one other camera: the hits in sample order, and how many
-/// the side-of-surface rule refused.
+/// The tests of one frame's sampled points in one other camera: the hits in sample order, and the
+/// residuals (m) of those the side-of-surface rule refused.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct PairTests {
     pub(crate) hits: Vec<Found>,
-    pub(crate) wrong_side: usize,
+    pub(crate) refused: Vec<f64>,
 }
 
 impl Problem<'_> {
@@ -435,14 +437,21 @@ impl Problem<'_> {
                                 test_point(&target, self.cfg, asn, r, (p, np), &q, |_, _, _, _| {
                                     true
                                 });
-                            if let Some((nj, res, sigma, weight)) = test.hit(&mut out.wrong_side) {
-                                out.hits.push(Found {
+                            match test {
+                                PointTest::Hit {
+                                    nj,
+                                    res,
+                                    sigma,
+                                    weight,
+                                } => out.hits.push(Found {
                                     k: k as u32,
                                     nj,
                                     res,
                                     sigma,
                                     weight,
-                                });
+                                }),
+                                PointTest::WrongSide { res } => out.refused.push(res),
+                                PointTest::Miss => {}
                             }
                         }
                         out
@@ -489,13 +498,12 @@ impl Problem<'_> {
                 let base_cam_i = self.t_base_ee[i] * x;
                 for (j, pt) in pairs.iter().enumerate().filter(|&(j, _)| j != i) {
                     let MatrixMap { r, t: tv } = map(i, j);
-                    let r_minus_i = r - Matrix3::identity();
                     let r_cj = *cam_base(j).rotation.to_rotation_matrix().matrix();
                     let mut block = Matrix6::zeros();
                     for f in &pt.hits {
                         let (p, nj) = (&fp.points[f.k as usize], &f.nj);
                         let q = r * p + tv;
-                        let jrow = hand_eye_row(nj, &q, p, &r, &r_minus_i);
+                        let jrow = hand_eye_row(nj, &q, p, &r);
                         // The point in the base, about the centre: frame i's increment moves it by
                         // ω × (y − c) + v, seen in camera j through its rotation.
                         let y = (base_cam_i * nalgebra::Point3::from(*p)).coords - centre;
@@ -525,13 +533,40 @@ impl Problem<'_> {
 impl Problem<'_> {
     /// The per-frame sums under hand-eye `x` (frame order, deterministic at any thread count).
     pub(crate) fn sums(&self, x: &Isometry3<f64>, a: &Association) -> Vec<FrameSums> {
-        let x_inv = x.inverse();
-        let map = |i: usize, j: usize| {
+        self.sums_of(x, &self.test_pairs(a, self.hand_eye_map(x)), a.gate_m)
+    }
+
+    /// [`Problem::sums`] at each of `gates_m` (metres, none wider than `a`'s), in that order, from one
+    /// run of the tests at `a`'s gate: the same sums, bit for bit, as a run per gate.
+    pub(crate) fn sums_at_gates(
+        &self,
+        x: &Isometry3<f64>,
+        a: &Association,
+        gates_m: &[f64],
+    ) -> Vec<Vec<FrameSums>> {
+        debug_assert!(gates_m.iter().all(|&g| g <= a.gate_m));
+        let tests = self.test_pairs(a, self.hand_eye_map(x));
+        gates_m
+            .iter()
+            .map(|&g| self.sums_of(x, &tests, g))
+            .collect()
+    }
+
+    /// How hand-eye `x` takes camera `i`'s coordinates into camera `j`'s.
+    fn hand_eye_map(&self, x: &Isometry3<f64>) -> impl Fn(usize, usize) -> MatrixMap + Sync + '_ {
+        let (x, x_inv) = (*x, x.inverse());
+        move |i: usize, j: usize| {
             MatrixMap::of(&(x_inv * self.t_base_ee[j].inverse() * self.t_base_ee[i] * x))
-        };
-        let tests = self.test_pairs(a, map);
+        }
+    }
+
+    /// The per-frame sums of `tests` (from [`Problem::test_pairs`] under hand-eye `x`) within a residual
+    /// gate of `gate_m` (metres, at most the one they ran with): the tests that gate finds, since the
+    /// residual gate is [`test_point`]'s first test after the surface lookup and nothing else depends on it.
+    fn sums_of(&self, x: &Isometry3<f64>, tests: &[Vec<PairTests>], gate_m: f64) -> Vec<FrameSums> {
+        let map = self.hand_eye_map(x);
         tests
-            .into_par_iter()
+            .par_iter()
             .enumerate()
             .map(|(i, pairs)| {
                 let mut s = FrameSums::default();
@@ -543,12 +578,11 @@ impl Problem<'_> {
                 let mut h = OuterSum6::default();
                 for (j, pt) in pairs.iter().enumerate().filter(|&(j, _)| j != i) {
                     let MatrixMap { r, t: tv } = map(i, j);
-                    let r_minus_i = r - Matrix3::identity();
-                    s.wrong_side += pt.wrong_side;
-                    for f in &pt.hits {
+                    s.wrong_side += pt.refused.iter().filter(|r| r.abs() <= gate_m).count();
+                    for f in pt.hits.iter().filter(|f| f.res.abs() <= gate_m) {
                         let p = &fp.points[f.k as usize];
                         let q = r * p + tv;
-                        let jrow = hand_eye_row(&f.nj, &q, p, &r, &r_minus_i);
+                        let jrow = hand_eye_row(&f.nj, &q, p, &r);
                         let ws = f.weight / (f.sigma * f.sigma);
                         h.add(&jrow.transpose(), ws);
                         s.g += jrow.transpose() * (f.res * ws);
@@ -655,12 +689,20 @@ mod tests {
         );
     }
 
-    /// The tests run camera by camera ([`Problem::test_pairs`]) are those of the frame-by-frame loop,
-    /// bit for bit and in sample order: four cameras over a slanted plane with a raised patch (depth
-    /// steps) and holes, under a hand-eye slightly off, so that points hit, miss and fall on the wrong
-    /// side.
-    #[test]
-    fn pairs_tested_by_camera_are_the_frame_by_frame_tests() {
+    /// Four cameras over a plane with holes and a ramp through it.
+    struct RampScene {
+        /// A hand-eye slightly off the one the views were made with.
+        x_off: Isometry3<f64>,
+        poses: Vec<Isometry3<f64>>,
+        /// At 0.1 mm depth units.
+        views: Vec<DepthView>,
+        intr: Intrinsics,
+        cfg: ConsistencyConfig,
+        /// Strict enough that the blocks' normal noise sends some tests to the wrong side.
+        association: Association,
+    }
+
+    fn ramp_scene() -> RampScene {
         let intr = Intrinsics::pinhole(160, 120, 120.0, 120.0, 79.5, 59.5);
         let cfg = ConsistencyConfig {
             sample_points: 300,
@@ -706,18 +748,39 @@ mod tests {
                 DepthView::new(&img, &intr4, &t_base_cam, 4)
             })
             .collect();
+        RampScene {
+            x_off: x * Isometry3::new(
+                Vector3::new(0.004, 0.002, -0.003),
+                Vector3::new(0.01, -0.02, 0.015),
+            ),
+            poses,
+            views,
+            intr: intr4,
+            cfg,
+            association: Association {
+                gate_m: 0.02,
+                min_normal_cos: 0.9998,
+                kernel: RobustKernel::Huber,
+                kernel_sigmas: 1.0,
+            },
+        }
+    }
+
+    /// The tests run camera by camera ([`Problem::test_pairs`]) are those of the frame-by-frame loop,
+    /// bit for bit and in sample order: four cameras over a slanted plane with a raised patch (depth
+    /// steps) and holes, under a hand-eye slightly off, so that points hit, miss and fall on the wrong
+    /// side.
+    #[test]
+    fn pairs_tested_by_camera_are_the_frame_by_frame_tests() {
+        let RampScene {
+            x_off: x1,
+            poses,
+            views,
+            intr: intr4,
+            cfg,
+            association: a,
+        } = ramp_scene();
         let problem = Problem::new(poses.clone(), &views, &intr4, &cfg);
-        let a = Association {
-            gate_m: 0.02,
-            // Strict enough that the blocks' normal noise sends some tests to the wrong side.
-            min_normal_cos: 0.9998,
-            kernel: RobustKernel::Huber,
-            kernel_sigmas: 1.0,
-        };
-        let x1 = x * Isometry3::new(
-            Vector3::new(0.004, 0.002, -0.003),
-            Vector3::new(0.01, -0.02, 0.015),
-        );
         let map = |i: usize, j: usize| {
             MatrixMap::of(&(x1.inverse() * poses[j].inverse() * poses[i] * x1))
         };
@@ -751,7 +814,7 @@ mod tests {
                                 sigma,
                                 weight,
                             }),
-                            PointTest::WrongSide => want.wrong_side += 1,
+                            PointTest::WrongSide { res } => want.refused.push(res),
                             PointTest::Miss => misses += 1,
                         }
                     }
@@ -766,15 +829,50 @@ mod tests {
                         .collect()
                 };
                 assert_eq!(bits(pair), bits(&want), "frames {i} -> {j}");
-                assert_eq!(pair.wrong_side, want.wrong_side, "frames {i} -> {j}");
+                assert_eq!(pair.refused, want.refused, "frames {i} -> {j}");
                 hits += want.hits.len();
-                wrong += want.wrong_side;
+                wrong += want.refused.len();
             }
         }
         assert!(
             hits > 500 && wrong > 5 && misses > 100,
             "{hits} hits, {wrong} wrong side, {misses} misses"
         );
+    }
+
+    /// The sums at several gates from one run of the tests at the widest are those of a run per gate, bit
+    /// for bit, down to the side-of-surface refusals and the samples used; the narrower gates drop tests
+    /// and refusals (or the check would not bite).
+    #[test]
+    fn sums_at_gates_are_the_sums_of_a_run_per_gate() {
+        let scene = ramp_scene();
+        let problem = Problem::new(scene.poses, &scene.views, &scene.intr, &scene.cfg);
+        let (x1, wide) = (scene.x_off, scene.association);
+        let gates = [0.02, 0.004, 0.0015];
+        let joint = problem.sums_at_gates(&x1, &wide, &gates);
+        let mut counts = Vec::new();
+        for (&gate_m, got) in gates.iter().zip(&joint) {
+            let want = problem.sums(&x1, &Association { gate_m, ..wide });
+            assert_eq!(got.len(), want.len());
+            let bits = |s: &FrameSums| {
+                let mut v: Vec<u64> = s.h.iter().chain(s.g.iter()).map(|x| x.to_bits()).collect();
+                v.extend([s.chi2.to_bits(), s.weight.to_bits()]);
+                v.extend(s.abs.iter().map(|a| a.to_bits() as u64));
+                v.extend([s.wrong_side as u64, s.samples_used as u64]);
+                v
+            };
+            for (g, w) in got.iter().zip(&want) {
+                assert_eq!(bits(g), bits(w), "gate {gate_m}");
+            }
+            let tests: usize = want.iter().map(|s| s.abs.len()).sum();
+            let wrong: usize = want.iter().map(|s| s.wrong_side).sum();
+            counts.push((tests, wrong));
+        }
+        assert!(
+            counts[0].0 > counts[1].0 && counts[1].0 > counts[2].0 && counts[2].0 > 100,
+            "{counts:?}"
+        );
+        assert!(counts[0].1 > counts[2].1, "{counts:?}");
     }
 
     /// `surface_at` (axes shared among its five lookups, rays without a call where there is no
