@@ -31,7 +31,7 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct HandEyeCheckConfig {
-    /// Run the check (default true; costs about 0.23 s for both robots of the demo cell and 0.55 s for the
+    /// Run the check (default true; costs about 0.20 s for both robots of the demo cell and 0.51 s for the
     /// 7-Scenes cell's, on 2 cores).
     pub enabled: bool,
     /// A hand-eye is inconsistent with its depth when the squared Mahalanobis distance of the change
