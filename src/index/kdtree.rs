@@ -49,6 +49,15 @@ impl NearestMemo {
     };
 }
 
+/// The order (distance, then index) of a neighbour `(index, squared distance)` as one integer: the bits of
+/// a squared distance, never negative nor NaN within a radius, order as the number does (`f32::total_cmp`),
+/// and indices fit in 32 bits. Comparing integers is a fraction of the cost of the two-key comparison.
+#[inline]
+fn distance_then_index(&(i, d2): &(usize, f32)) -> u64 {
+    debug_assert!(d2 >= 0.0 && i <= u32::MAX as usize);
+    ((d2.to_bits() as u64) << 32) | i as u64
+}
+
 /// A node of the tree with the tight bounding box of its points: an internal node has the children `a`
 /// and `b` (node indices); a leaf holds the points `a..b` of the reordered array.
 #[derive(Clone, Copy, Debug)]
@@ -522,13 +531,11 @@ impl KdIndex {
         // (distance, index): the same set and order as the bounded k-nearest search, without its
         // insertion sort of up to `max_n` entries per point found.
         t.within_into(p, radius * radius, out);
-        let by_distance =
-            |a: &(usize, f32), b: &(usize, f32)| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0));
         if out.len() > max_n {
-            out.select_nth_unstable_by(max_n - 1, by_distance);
+            out.select_nth_unstable_by_key(max_n - 1, distance_then_index);
             out.truncate(max_n);
         }
-        out.sort_unstable_by(by_distance);
+        out.sort_unstable_by_key(distance_then_index);
     }
 
     /// Every point within `radius` (not squared, inclusive), in index order.
