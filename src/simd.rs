@@ -6,21 +6,21 @@
 //! never contracts `a * b + c` into a fused multiply-add on its own, and the vector square root, adds and
 //! multiplies round as the scalar ones do.
 
-/// Defines `fn $name(args) -> ret` that calls `$generic(args)` compiled for the widest of AVX-512F,
+/// Defines `fn $name(args) -> ret` (or without a result) that calls `$generic(args)` compiled for the widest of AVX-512F,
 /// AVX2 + FMA and the baseline that the CPU supports. `$generic` should be `#[inline(always)]` so that each
 /// copy is compiled with its instruction set.
 macro_rules! dispatch_simd {
-    ($(#[$meta:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) -> $ret:ty = $generic:path;) => {
+    ($(#[$meta:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)? = $generic:path;) => {
         $(#[$meta])*
-        $vis fn $name($($arg: $ty),*) -> $ret {
+        $vis fn $name($($arg: $ty),*) $(-> $ret)? {
             #[cfg(target_arch = "x86_64")]
             {
                 #[target_feature(enable = "avx512f")]
-                unsafe fn avx512($($arg: $ty),*) -> $ret {
+                unsafe fn avx512($($arg: $ty),*) $(-> $ret)? {
                     $generic($($arg),*)
                 }
                 #[target_feature(enable = "avx2,fma")]
-                unsafe fn avx2($($arg: $ty),*) -> $ret {
+                unsafe fn avx2($($arg: $ty),*) $(-> $ret)? {
                     $generic($($arg),*)
                 }
                 if std::arch::is_x86_feature_detected!("avx512f") {

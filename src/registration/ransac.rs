@@ -286,20 +286,49 @@ impl Graph {
 }
 
 /// The consistency graph of the matches `(ps[i], qs[i])`: `i` and `j` agree when their lengths in both
-/// clouds differ by less than `tol` and both exceed `min_len`. Each row is tested in full, in parallel
-/// (the test is symmetric bit for bit, so this is the graph of testing each pair once and mirroring it),
-/// 16 matches at a time into the row's bits.
+/// clouds differ by less than `tol` and both exceed `min_len`. The test is symmetric bit for bit, so each
+/// pair is tested once: in 64 x 64 blocks of the bit matrix, the blocks on and above the diagonal are
+/// tested (rows in parallel, 16 matches at a time into a row's bits) and those below are their transposes.
 fn consistency_graph(ps: &[[f32; 3]], qs: &[[f32; 3]], tol: f32, min_len: f32) -> Graph {
     let n = ps.len();
     let words = n.div_ceil(64);
     let (p, q) = (Soa::new(ps), Soa::new(qs));
     let min2 = min_len * min_len;
     let mut bits = vec![0u64; n * words];
-    let degree: Vec<u32> = bits
-        .par_chunks_mut(words.max(1))
+    bits.par_chunks_mut(words.max(1))
         .take(n)
         .enumerate()
-        .map(|(i, row)| graph_row(&p, &q, i, (tol, min2), row))
+        .for_each(|(i, row)| graph_row(&p, &q, i, (tol, min2), row));
+    // Block (b, c) below the diagonal (c < b) is the transpose of block (c, b): rows 64c.. at word b.
+    let block_rows = |b: usize| 64 * b..(64 * b + 64).min(n);
+    let lower: Vec<Vec<[u64; 64]>> = (0..words)
+        .into_par_iter()
+        .map(|b| {
+            (0..b)
+                .map(|c| {
+                    let mut m = [0u64; 64];
+                    for (k, r) in block_rows(c).enumerate() {
+                        m[k] = bits[r * words + b];
+                    }
+                    transpose64(&mut m);
+                    m
+                })
+                .collect()
+        })
+        .collect();
+    let degree: Vec<u32> = bits
+        .par_chunks_mut(64 * words.max(1))
+        .zip(lower)
+        .flat_map_iter(|(rows, blocks)| {
+            for (c, m) in blocks.iter().enumerate() {
+                for (k, row) in rows.chunks_mut(words).enumerate() {
+                    row[c] = m[k];
+                }
+            }
+            rows.chunks(words)
+                .map(|row| row.iter().map(|w| w.count_ones()).sum::<u32>())
+                .collect::<Vec<_>>()
+        })
         .collect();
     Graph {
         words,
@@ -308,18 +337,39 @@ fn consistency_graph(ps: &[[f32; 3]], qs: &[[f32; 3]], tol: f32, min_len: f32) -
     }
 }
 
+/// Transposes a 64 x 64 bit matrix in place (row `r` is `m[r]`, column `c` its bit `c`): swaps of ever
+/// smaller off-diagonal blocks (32, 16, ... 1 bits), each a few masked shifts per word.
+fn transpose64(m: &mut [u64; 64]) {
+    let mut width = 32;
+    let mut mask: u64 = 0x0000_0000_FFFF_FFFF;
+    while width != 0 {
+        let mut r = 0;
+        while r < 64 {
+            for k in r..r + width {
+                let t = ((m[k] >> width) ^ m[k + width]) & mask;
+                m[k] ^= t << width;
+                m[k + width] ^= t;
+            }
+            r += 2 * width;
+        }
+        width >>= 1;
+        mask ^= mask << width;
+    }
+}
+
 crate::simd::dispatch_simd! {
     /// Row `i` of the consistency graph of the matches `(p, q)` (`limits`: the tolerance and the squared
-    /// least length) into `row`'s bits, 16 matches at a time; returns its degree.
-    fn graph_row(p: &Soa, q: &Soa, i: usize, limits: (f32, f32), row: &mut [u64]) -> u32 = graph_row_generic;
+    /// least length) into `row`'s bits from its own 64-bit word on (the diagonal block and those right of
+    /// it), 16 matches at a time.
+    fn graph_row(p: &Soa, q: &Soa, i: usize, limits: (f32, f32), row: &mut [u64]) = graph_row_generic;
 }
 
 #[inline(always)]
-fn graph_row_generic(p: &Soa, q: &Soa, i: usize, (tol, min2): (f32, f32), row: &mut [u64]) -> u32 {
+fn graph_row_generic(p: &Soa, q: &Soa, i: usize, (tol, min2): (f32, f32), row: &mut [u64]) {
     let n = p.x.len();
     let (pi, qi) = ([p.x[i], p.y[i], p.z[i]], [q.x[i], q.y[i], q.z[i]]);
     let full = n - n % LANES;
-    for start in (0..full).step_by(LANES) {
+    for start in (64 * (i / 64)..full).step_by(LANES) {
         let r = start..start + LANES;
         let lane = |v: &[f32]| -> [f32; LANES] { v[r.clone()].try_into().expect("full lane") };
         let (px, py, pz) = (lane(&p.x), lane(&p.y), lane(&p.z));
@@ -335,12 +385,11 @@ fn graph_row_generic(p: &Soa, q: &Soa, i: usize, (tol, min2): (f32, f32), row: &
         }
         row[start / 64] |= mask << (start % 64);
     }
-    for j in full..n {
+    for j in full.max(64 * (i / 64))..n {
         let (pj, qj) = ([p.x[j], p.y[j], p.z[j]], [q.x[j], q.y[j], q.z[j]]);
         row[j / 64] |= (edge_agrees(&pj, &qj, &pi, &qi, tol, min2) as u64) << (j % 64);
     }
     row[i / 64] &= !(1u64 << (i % 64));
-    row.iter().map(|w| w.count_ones()).sum()
 }
 
 /// `x²` (as `powi(2)`, which does not vectorise).
@@ -922,6 +971,25 @@ mod tests {
         );
     }
 
+    /// A 64 x 64 bit transpose against the bit-by-bit definition.
+    #[test]
+    fn transpose64_is_the_transpose() {
+        let mut s = 3u64;
+        let m: [u64; 64] = std::array::from_fn(|_| {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            s
+        });
+        let mut t = m;
+        transpose64(&mut t);
+        for (r, row) in m.iter().enumerate() {
+            for (c, col) in t.iter().enumerate() {
+                assert_eq!((col >> r) & 1, (row >> c) & 1, "({r}, {c})");
+            }
+        }
+    }
+
     /// The row-parallel graph is the graph of testing each pair once and mirroring it (the oracle), with
     /// ascending rows and no self-loops, for sizes with and without a partial last lane and word; its
     /// degrees, membership tests and `nth` neighbours agree with the lists.
@@ -934,7 +1002,7 @@ mod tests {
                 .wrapping_add(1442695040888963407);
             (s >> 40) as f32 / (1u64 << 24) as f32
         };
-        for n in [0, 1, 15, 16, 17, 64, 65, 203] {
+        for n in [0, 1, 15, 16, 17, 64, 65, 203, 320] {
             let ps: Vec<[f32; 3]> = (0..n).map(|_| [r(), r(), r()]).collect();
             // Half the matches are the source moved rigidly (consistent), half noise.
             let qs: Vec<[f32; 3]> = ps
