@@ -9,7 +9,9 @@ use crate::calibration::visibility::{
 use crate::error::Result;
 use crate::fusion::FusedCloud;
 use crate::registration::pipeline::Ambiguity;
-use crate::registration::{register_with_prior, HypothesisPrior, PoseConstraint, RegisterConfig};
+use crate::registration::{
+    register_request, HypothesisPrior, PoseConstraint, RegisterConfig, RegisterRequest,
+};
 use nalgebra::{Isometry3, Matrix6, Vector6};
 use serde::{Deserialize, Serialize};
 
@@ -158,29 +160,18 @@ impl Initializer for GlobalRegistration {
             degeneracy_slide_voxels: 0.0,
             ..RegisterConfig::default()
         };
+        // Each search's answer is only a start (its covariance is not used): no re-associated information.
+        let search = |cfg: &RegisterConfig, prior: Option<HypothesisPrior>| {
+            register_request(RegisterRequest {
+                prior,
+                check_extents: false,
+                reassociate: false,
+                ..RegisterRequest::new(&other.cloud, &reference.cloud, cfg)
+            })
+        };
         let (r, p) = rayon::join(
-            || {
-                register_with_prior(
-                    &other.cloud,
-                    &reference.cloud,
-                    None,
-                    &cfg,
-                    &mut |_| {},
-                    vis.as_ref().map(|_| &prior as HypothesisPrior),
-                )
-            },
-            || {
-                self.search.plain.then(|| {
-                    register_with_prior(
-                        &other.cloud,
-                        &reference.cloud,
-                        None,
-                        &plain_cfg,
-                        &mut |_| {},
-                        None,
-                    )
-                })
-            },
+            || search(&cfg, vis.as_ref().map(|_| &prior as HypothesisPrior)),
+            || self.search.plain.then(|| search(&plain_cfg, None)),
         );
         let r = r?;
         let g = r.global.as_ref().expect("global stage ran");

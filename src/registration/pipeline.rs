@@ -665,6 +665,11 @@ pub struct RegisterRequest<'a> {
     /// Prepared levels and spacings to share with other registrations of the same clouds (default none:
     /// each is computed here). Results are the same either way.
     pub prepared: Option<&'a PreparedLevels>,
+    /// Add the re-associated part to the covariance ([`crate::registration::icp::reassociated_information`]:
+    /// thirteen correspondence searches over the finest level; default true). A caller that uses the
+    /// registration only as a starting point (calibrate's depth initialiser) leaves it out; the covariance is
+    /// then the fixed pairs' alone, and nothing else changes.
+    pub reassociate: bool,
 }
 
 impl<'a> RegisterRequest<'a> {
@@ -679,6 +684,7 @@ impl<'a> RegisterRequest<'a> {
             progress: None,
             check_extents: true,
             prepared: None,
+            reassociate: true,
         }
     }
 }
@@ -741,35 +747,18 @@ pub fn register_with_prior(
 /// The one entry point of the pipeline: the extents check when asked for (see
 /// [`RegisterRequest::check_extents`]), then the stages `clean → scale → downsample_normals → global →
 /// verify → icp_pyramid → quality` (see [`Registration::stages`]).
-pub fn register_request(req: RegisterRequest) -> Result<Registration> {
+pub fn register_request(mut req: RegisterRequest) -> Result<Registration> {
     let mut silent = |_: &str| {};
-    let progress: &mut dyn FnMut(&str) = match req.progress {
+    let progress: &mut dyn FnMut(&str) = match req.progress.take() {
         Some(p) => p,
         None => &mut silent,
     };
     if !req.check_extents {
-        return run_pipeline(
-            req.source,
-            req.target,
-            req.initial,
-            req.config,
-            progress,
-            req.prior,
-            req.prepared,
-        );
+        return run_pipeline(&req, progress);
     }
     let notes = check_extents(req.source, req.target, req.config.voxel)?;
     let context = notes.units.as_ref().or(notes.big_voxel.as_ref());
-    let mut reg = run_pipeline(
-        req.source,
-        req.target,
-        req.initial,
-        req.config,
-        progress,
-        req.prior,
-        req.prepared,
-    )
-    .map_err(|e| match context {
+    let mut reg = run_pipeline(&req, progress).map_err(|e| match context {
         Some(c) => Error::InvalidInput(format!("{c}: {e}")),
         None => e,
     })?;
@@ -791,15 +780,9 @@ pub fn register_request(req: RegisterRequest) -> Result<Registration> {
 /// 5. [`verify`] (with [`RegisterConfig::verify`]): the best hypotheses refined and rescored;
 /// 6. [`icp_pyramid`]: coarse-to-fine trimmed robust ICP;
 /// 7. [`quality`]: degeneracy, covariance, then the trust verdict.
-fn run_pipeline(
-    source: &PointCloud,
-    target: &PointCloud,
-    init: Option<&Isometry3<f64>>,
-    cfg: &RegisterConfig,
-    progress: &mut dyn FnMut(&str),
-    prior: Option<HypothesisPrior>,
-    memo: Option<&PreparedLevels>,
-) -> Result<Registration> {
+fn run_pipeline(req: &RegisterRequest, progress: &mut dyn FnMut(&str)) -> Result<Registration> {
+    let (source, target, init, cfg) = (req.source, req.target, req.initial, req.config);
+    let (prior, memo) = (req.prior, req.prepared);
     let mut timer = StageTimer::new();
     progress("measuring scale");
     let Cleaned {
@@ -849,7 +832,16 @@ fn run_pipeline(
         }
     };
 
-    let pyramid = icp_pyramid(&src, &tgt, &s0, &t0, &initial, voxel, spacing, cfg, memo)?;
+    let pyramid = icp_pyramid(
+        &src,
+        &tgt,
+        (&s0, &t0),
+        &initial,
+        (voxel, spacing),
+        cfg,
+        memo,
+        req.reassociate,
+    )?;
     timer.lap_counted(
         "icp",
         Some(
@@ -1236,13 +1228,12 @@ type LevelOutcome = (IcpResult, Vec<[f32; 3]>, Agreement, Option<Matrix6<f64>>);
 fn icp_pyramid(
     src: &PointCloud,
     tgt: &PointCloud,
-    s0: &Level,
-    t0: &Level,
+    (s0, t0): (&Level, &Level),
     initial: &Isometry3<f64>,
-    voxel: f64,
-    spacing: [f64; 2],
+    (voxel, spacing): (f64, [f64; 2]),
     cfg: &RegisterConfig,
     memo: Option<&PreparedLevels>,
+    reassociate: bool,
 ) -> Result<Pyramid> {
     let finest = cfg.icp_min_voxel_spacings * spacing[0].max(spacing[1]);
     let mut t = *initial;
@@ -1324,7 +1315,7 @@ fn icp_pyramid(
             prepare_ms: if level == 0 { 0.0 } else { prep_ms },
             iterations: r.history.clone(),
         });
-        let reassociated = if last_level {
+        let reassociated = if last_level && reassociate {
             crate::registration::icp::reassociated_information(
                 &source_cloud,
                 &tlev.icp_cloud(),
