@@ -42,8 +42,14 @@ pub struct HandEyeCheckConfig {
     /// stays within this (default 1 000 000: 1200 points up to 29 frames).
     pub max_pair_tests: usize,
     /// The refinement's settings (default: those of `handeye --depth` with the gates 40 and 15 mm and at
-    /// most 6 iterations per gate).
+    /// most 6 iterations per gate). Its step tolerances are replaced by `step_fraction` of the 1-σ tested
+    /// against.
     pub depth: HandEyeDepthConfig,
+    /// The refinement's iterations at a gate end once a step is below this fraction of the hand-eye 1-σ the
+    /// change is tested against (default 0.05: 0.0025° / 0.025 mm with depthcal's default 1-σ). A step that
+    /// small moves the tested distance by about this many σ (the steps after it are smaller still where the
+    /// fit converges), against a limit of 4.74 σ.
+    pub step_fraction: f64,
 }
 
 impl Default for HandEyeCheckConfig {
@@ -57,6 +63,7 @@ impl Default for HandEyeCheckConfig {
                 max_iterations: 6,
                 ..HandEyeDepthConfig::default()
             },
+            step_fraction: 0.05,
         }
     }
 }
@@ -71,6 +78,7 @@ impl HandEyeCheckConfig {
                 "must be at least 1",
             ));
         }
+        crate::error::check::positive("hand_eye_check.step_fraction", self.step_fraction)?;
         crate::error::check::positive("hand_eye_check.max_distance_sq", self.max_distance_sq)
     }
 }
@@ -227,10 +235,13 @@ pub fn check_hand_eye_under_scatter(
         ));
     }
     let n = robot.frames.len();
+    let (sigma_deg, sigma_mm, _) = stated_sigma(robot);
     let depth = HandEyeDepthConfig {
         sample_points: (cfg.max_pair_tests / (n * (n - 1)))
             .clamp(100, cfg.depth.sample_points.max(100))
             .min(cfg.depth.sample_points),
+        step_tolerance_deg: cfg.step_fraction * sigma_deg,
+        step_tolerance_mm: cfg.step_fraction * sigma_mm,
         ..cfg.depth.clone()
     };
     let (fit, scatter) = refine_hand_eye_under_scatter(robot, views, &depth, scatter)?;

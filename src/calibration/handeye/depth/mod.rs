@@ -61,6 +61,10 @@ pub struct HandEyeDepthConfig {
     pub gates_m: Vec<f64>,
     /// Gauss-Newton iterations per gate at most (default 12).
     pub max_iterations: usize,
+    /// A gate's iterations end once a step turns the hand-eye by less than this, degrees (default 0.001) ...
+    pub step_tolerance_deg: f64,
+    /// ... and moves it by less than this, millimetres (default 0.01).
+    pub step_tolerance_mm: f64,
     /// Robust kernel (default Huber) ...
     pub kernel: RobustKernel,
     /// ... at this many depth-noise σ of the pair (default 2).
@@ -97,6 +101,8 @@ impl Default for HandEyeDepthConfig {
             noise_b_per_m: 0.0022,
             gates_m: vec![0.04, 0.015, 0.008],
             max_iterations: 12,
+            step_tolerance_deg: 0.001,
+            step_tolerance_mm: 0.01,
             kernel: RobustKernel::Huber,
             kernel_sigmas: 2.0,
             max_normal_angle_deg: 45.0,
@@ -130,6 +136,14 @@ impl HandEyeDepthConfig {
         }
         if self.max_iterations == 0 {
             return bad("max_iterations", "must be at least 1".into());
+        }
+        for (field, v) in [
+            ("step_tolerance_deg", self.step_tolerance_deg),
+            ("step_tolerance_mm", self.step_tolerance_mm),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(field, format!("must be positive, found {v}"));
+            }
         }
         if self.min_frames < 2 {
             return bad("min_frames", "must be at least 2".into());
@@ -442,8 +456,10 @@ impl Solver<'_> {
                     step *= gate / 3.0 / size;
                 }
                 x *= exp_twist(&step);
-                converged = Vector3::new(step[0], step[1], step[2]).norm() < 1e-3f64.to_radians()
-                    && Vector3::new(step[3], step[4], step[5]).norm() < 1e-5;
+                converged = Vector3::new(step[0], step[1], step[2]).norm()
+                    < cfg.step_tolerance_deg.to_radians()
+                    && Vector3::new(step[3], step[4], step[5]).norm()
+                        < cfg.step_tolerance_mm * 1e-3;
                 if converged {
                     break;
                 }
