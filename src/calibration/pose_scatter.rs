@@ -54,8 +54,7 @@ pub struct PoseScatterConfig {
     pub max_pair_tests: usize,
     /// Association gates, coarse to fine, metres (default `[0.02, 0.008]`).
     pub gates_m: Vec<f64>,
-    /// Gauss-Newton iterations per gate at most (default 3; fewer once the steps are negligible, see
-    /// [`STEP_TOLERANCE`]).
+    /// Gauss-Newton iterations per gate (default 3).
     pub iterations: usize,
     /// 1-σ of the loose prior on each correction with which the scatter is first estimated, millimetres
     /// (default 20) ...
@@ -318,13 +317,6 @@ fn normal_equations(
     (hh, gg, stats)
 }
 
-/// A gate's Gauss-Newton iterations stop once no frame's correction moves by more than this fraction of the
-/// pose repeatability (rotation, and translation at the scene's centre): less than the estimate can tell
-/// from the floor it is held to. On the demo cell's robots the steps fall from 0.13-0.14 mm to 1-5 µm at
-/// the second iteration, where one robot's then creep by 1.3 µm an iteration along what only the prior
-/// holds; both now run 4 evaluations instead of 6.
-const STEP_TOLERANCE: f64 = 0.05;
-
 /// Residual statistics of one evaluation of the normal equations.
 #[derive(Clone, Copy, Debug, Default)]
 struct Stats {
@@ -414,10 +406,6 @@ pub fn estimate_pose_scatter(
     let range = (all.iter().map(|p| (p - centre).norm_squared()).sum::<f64>() / all.len() as f64)
         .sqrt()
         .max(0.05);
-    let u = &robot.uncertainty;
-    // At the scene's centre, a flange rotation also shifts: the repeatability there.
-    let floor_r = u.pose_rotation_rad;
-    let floor_t = (u.pose_translation_m.powi(2) + (u.pose_rotation_rad * range).powi(2)).sqrt();
     let solve = |fixed: &[bool], pr: f64, pt: f64| -> Option<Solved> {
         let mut eps = vec![Vector6::<f64>::zeros(); n];
         let mut last = None;
@@ -465,17 +453,10 @@ pub fn estimate_pose_scatter(
                 }
                 let chol = h.cholesky()?;
                 let step = chol.solve(&(-g));
-                let mut settled = true;
                 for (i, e) in eps.iter_mut().enumerate() {
-                    let s = step.fixed_rows::<6>(6 * i);
-                    settled &= Vector3::new(s[0], s[1], s[2]).norm() < STEP_TOLERANCE * floor_r
-                        && Vector3::new(s[3], s[4], s[5]).norm() < STEP_TOLERANCE * floor_t;
-                    *e += s;
+                    *e += step.fixed_rows::<6>(6 * i);
                 }
                 last = Some((chol, stats));
-                if settled {
-                    break;
-                }
             }
         }
         let (chol, stats) = last?;
@@ -517,6 +498,10 @@ pub fn estimate_pose_scatter(
             / (3.0 * m))
             .sqrt()
     };
+    let u = &robot.uncertainty;
+    // At the scene's centre, a flange rotation also shifts: the repeatability there.
+    let floor_r = u.pose_rotation_rad;
+    let floor_t = (u.pose_translation_m.powi(2) + (u.pose_rotation_rad * range).powi(2)).sqrt();
     let loose = (cfg.prior_deg.to_radians(), cfg.prior_mm * 1e-3);
     // Round 1 with the loose prior finds the scatter; round 2 solves again with the scatter as the prior,
     // so that corrections the frames' own noise explains shrink away.
