@@ -118,6 +118,9 @@ impl<'a> RobotSight<'a> {
     }
 }
 
+/// Sampled points [`violation_fraction`] classifies together (a unit of its parallel work).
+const VIOLATION_CHUNK: usize = 64;
+
 /// A surface point that a camera sees at its own depth but from behind (its side faces away from the
 /// camera by more than this cosine) cannot be what the camera saw.
 const BACKFACE_COS: f64 = -0.2;
@@ -140,36 +143,62 @@ pub fn violation_fraction(
         .iter()
         .map(|v| nalgebra::Point3::from(v.t_cam_base.inverse().translation.vector))
         .collect();
-    let (free, decided) = (0..points.len())
-        .into_par_iter()
-        .step_by(step)
-        .map(|i| {
-            let q = t_views_points * to_p64(&points[i]);
-            if cfg.in_robot_body(&q) {
-                return (0, 0);
-            }
-            let side = cloud
-                .sides
-                .map(|s| t_views_points.rotation * to_p64(&s[i]).coords);
-            let mut seen = false;
-            for (v, c) in views.iter().zip(&centres) {
-                match v.classify(&q, cfg.margin_m) {
-                    Seen::FreeSpace => return (1usize, 1usize),
-                    Seen::Unknown => {}
-                    Seen::Surface => {
-                        if let Some(n) = side {
-                            let to_cam = c - q;
-                            let len = to_cam.norm();
-                            if n.norm() > 0.5 && len > 0.0 && n.dot(&to_cam) < BACKFACE_COS * len {
-                                return (1, 1);
-                            }
-                        }
-                        seen = true;
-                    }
-                    _ => seen = true,
+    let sample: Vec<usize> = (0..points.len()).step_by(step).collect();
+    // Chunk by chunk: the chunk's points in the views' frame (those outside the viewing robot's body),
+    // classified in every view at once ([`DepthView::classify_many`]). A point counts as violating when
+    // some view saw through it or saw it at its depth from behind, else as decided when some view saw it
+    // at all: the order of the views does not matter.
+    let (free, decided) = sample
+        .par_chunks(VIOLATION_CHUNK)
+        .map(|chunk| {
+            let mut at = [const { Vec::new() }; 3];
+            let mut sides = Vec::new();
+            for &i in chunk {
+                let q = t_views_points * to_p64(&points[i]);
+                if cfg.in_robot_body(&q) {
+                    continue;
+                }
+                for (c, v) in at.iter_mut().zip([q.x, q.y, q.z]) {
+                    c.push(v);
+                }
+                if let Some(s) = cloud.sides {
+                    sides.push(t_views_points.rotation * to_p64(&s[i]).coords);
                 }
             }
-            (0, seen as usize)
+            let m = at[0].len();
+            let (mut violated, mut seen) = (vec![false; m], vec![false; m]);
+            let mut codes = vec![Seen::Unknown; m];
+            for (v, c) in views.iter().zip(&centres) {
+                v.classify_many(&at[0], &at[1], &at[2], cfg.margin_m, &mut codes);
+                for (j, code) in codes.iter().enumerate() {
+                    match code {
+                        Seen::FreeSpace => violated[j] = true,
+                        Seen::Unknown => {}
+                        Seen::Surface => {
+                            if let Some(n) = sides.get(j) {
+                                let q = nalgebra::Point3::new(at[0][j], at[1][j], at[2][j]);
+                                let to_cam = c - q;
+                                let len = to_cam.norm();
+                                if n.norm() > 0.5
+                                    && len > 0.0
+                                    && n.dot(&to_cam) < BACKFACE_COS * len
+                                {
+                                    violated[j] = true;
+                                }
+                            }
+                            seen[j] = true;
+                        }
+                        Seen::Occluded => seen[j] = true,
+                    }
+                }
+            }
+            let free = violated.iter().filter(|&&b| b).count();
+            let decided = violated
+                .iter()
+                .zip(&seen)
+                .filter(|(a, b)| **a || **b)
+                .count();
+            (free, decided)
         })
         .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     if decided == 0 {
