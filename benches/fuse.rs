@@ -145,6 +145,25 @@ fn cell(c: &mut Criterion) {
     g.bench_function("free_space_violation", |b| {
         b.iter(|| black_box(free_space_violation(&ra, &ro, &truth, &vcfg)))
     });
+    // What the global stage's prior sees: many hypotheses, each landing the points on other blocks (a
+    // fixed spread of up to ±0.3 m and ±29° of yaw about the truth; the same 100 every run).
+    let hypotheses: Vec<Isometry3<f64>> = (0..100)
+        .map(|k| {
+            let f = |m: u64| ((k as u64 * m + 17) % 101) as f64 / 100.0 - 0.5;
+            Isometry3::new(
+                Vector3::new(0.6 * f(37), 0.6 * f(59), 0.1 * f(71)),
+                Vector3::new(0.05 * f(13), 0.05 * f(29), f(43)),
+            ) * truth
+        })
+        .collect();
+    g.bench_function("free_space_violation_100_hypotheses", |b| {
+        b.iter(|| {
+            hypotheses
+                .iter()
+                .map(|h| free_space_violation(&ra, &ro, h, &vcfg))
+                .sum::<f64>()
+        })
+    });
     use depthcal::calibration::consistency::{robot_consistency, ConsistencyConfig};
     let ccfg = ConsistencyConfig::default();
     g.bench_function("robot_consistency_both", |b| {
