@@ -151,32 +151,38 @@ pub fn violation_fraction(
     let (free, decided) = sample
         .par_chunks(VIOLATION_CHUNK)
         .map(|chunk| {
-            let mut at = [const { Vec::new() }; 3];
-            let mut sides = Vec::new();
+            // At most VIOLATION_CHUNK points: kept on the stack.
+            let mut at = [[0f64; VIOLATION_CHUNK]; 3];
+            let mut sides = [nalgebra::Vector3::zeros(); VIOLATION_CHUNK];
+            let mut m = 0;
             for &i in chunk {
                 let q = t_views_points * to_p64(&points[i]);
                 if cfg.in_robot_body(&q) {
                     continue;
                 }
                 for (c, v) in at.iter_mut().zip([q.x, q.y, q.z]) {
-                    c.push(v);
+                    c[m] = v;
                 }
                 if let Some(s) = cloud.sides {
-                    sides.push(t_views_points.rotation * to_p64(&s[i]).coords);
+                    sides[m] = t_views_points.rotation * to_p64(&s[i]).coords;
                 }
+                m += 1;
             }
-            let m = at[0].len();
-            let (mut violated, mut seen) = (vec![false; m], vec![false; m]);
-            let mut codes = vec![Seen::Unknown; m];
+            let [x, y, z] = &at;
+            let (x, y, z) = (&x[..m], &y[..m], &z[..m]);
+            let (mut violated, mut seen) = ([false; VIOLATION_CHUNK], [false; VIOLATION_CHUNK]);
+            let mut codes = [Seen::Unknown; VIOLATION_CHUNK];
+            let codes = &mut codes[..m];
             for (v, c) in views.iter().zip(&centres) {
-                v.classify_many(&at[0], &at[1], &at[2], cfg.margin_m, &mut codes);
+                v.classify_many(x, y, z, cfg.margin_m, codes);
                 for (j, code) in codes.iter().enumerate() {
                     match code {
                         Seen::FreeSpace => violated[j] = true,
                         Seen::Unknown => {}
                         Seen::Surface => {
-                            if let Some(n) = sides.get(j) {
-                                let q = nalgebra::Point3::new(at[0][j], at[1][j], at[2][j]);
+                            if cloud.sides.is_some() {
+                                let n = &sides[j];
+                                let q = nalgebra::Point3::new(x[j], y[j], z[j]);
                                 let to_cam = c - q;
                                 let len = to_cam.norm();
                                 if n.norm() > 0.5
@@ -192,10 +198,10 @@ pub fn violation_fraction(
                     }
                 }
             }
-            let free = violated.iter().filter(|&&b| b).count();
-            let decided = violated
+            let free = violated[..m].iter().filter(|&&b| b).count();
+            let decided = violated[..m]
                 .iter()
-                .zip(&seen)
+                .zip(&seen[..m])
                 .filter(|(a, b)| **a || **b)
                 .count();
             (free, decided)

@@ -320,13 +320,8 @@ mod tests {
         use crate::camera::distortion::DistortionModel;
         let mut intr = Intrinsics::pinhole(61, 47, 52.0, 49.0, 30.2, 22.7);
         let mut img = DepthImage::zeros(61, 47);
-        let mut s = 7u64;
-        let mut rnd = move || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::geometry::rng::Rng::new(7);
+        let mut rnd = move || rng.next_f64();
         for d in img.data.iter_mut() {
             // Depth from 0.8 to 2.0 m, a tenth of the pixels without depth.
             *d = if rnd() < 0.1 {
