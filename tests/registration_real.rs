@@ -15,6 +15,8 @@ fn extra_seeds() -> impl Iterator<Item = u64> {
     1000..1000 + n
 }
 
+/// Registers fragment `j` of the 3DMatch redkitchen scene onto fragment `i` from seeded random poses: each answer
+/// within the data set's truth floor (2.5° / 5 cm) and trusted.
 fn three_dmatch_pair(i: usize, j: usize, seeds: &[u64]) {
     let Some(d) = data("3dmatch-redkitchen") else {
         return;
@@ -52,16 +54,24 @@ fn three_dmatch_pair(i: usize, j: usize, seeds: &[u64]) {
             &RegisterConfig::default(),
         );
         eprintln!(
-            "3DMatch {j}->{i} seed {seed}: {r:.3} deg, {:.1} mm, fitness {:.3}, overlap {:.3}, {:?}",
+            "3DMatch {j}->{i} seed {seed}: {r:.3} deg, {:.1} mm, fitness {:.3}, overlap {:.3}, trusted {} {:?}, {:?}",
             t * 1e3,
             reg.fitness,
             reg.overlap,
+            reg.trust.trusted,
+            reg.trust.reasons,
             reg.timings_ms
         );
         assert!(
             r < 2.5 && t < 0.05,
             "3DMatch {j}->{i} seed {seed}: {r:.3} deg, {:.1} mm",
             t * 1e3
+        );
+        // Right at the data set's truth floor, so it must be trusted (30 of 30 seeds were).
+        assert!(
+            reg.trust.trusted,
+            "3DMatch {j}->{i} seed {seed}: right but refused: {:?}",
+            reg.trust.reasons
         );
     }
 }

@@ -12,8 +12,10 @@
 //!    re-estimated each iteration from the RMS of the kept pairs' residual norms;
 //! 5. **optimiser**: one Gauss-Newton step on a left increment `[ω, v]` per iteration, Anderson-accelerated
 //!    while the steps are large ([`crate::registration::anderson`]);
-//! 6. **termination**: the step is below both tolerances (`converged = true`) or the iteration budget is
-//!    spent (`converged = false`).
+//! 6. **termination**: the step is below both tolerances (`converged = true`), the plain steps return to a
+//!    pose of the last [`MAX_CYCLE`] iterations within those tolerances (a cycle of alternating
+//!    correspondences: `converged = true`, the cycle's extent in [`IcpResult::cycle`]), or the iteration
+//!    budget is spent (`converged = false`).
 //!
 //! The increment, the information matrix and the covariance are all in the parameterisation
 //! `T ← exp([ω]×)·T + v`: rotation (radians) about the target frame's origin, then translation (cloud units).
@@ -199,8 +201,13 @@ pub struct IcpResult {
     pub transform: Isometry3<f64>,
     /// Iterations run.
     pub iterations: usize,
-    /// True only when the step fell below both tolerances within the budget.
+    /// True when the step fell below both tolerances within the budget, or the steps came back to a pose
+    /// visited before (then [`IcpResult::cycle`] holds the motion left).
     pub converged: bool,
+    /// When the iterations settled into a cycle instead of a fixed point (the pairs alternate between two
+    /// or more sets, each step undoing the last): its extent, the largest step within it. The answer can
+    /// lie anywhere on the cycle, so a covariance should cover this much motion.
+    pub cycle: Option<IcpCycle>,
     /// Fraction of source points with a target point within `max_correspondence_distance`.
     pub fitness: f64,
     /// RMS point-to-point distance of those pairs (cloud units).
@@ -226,6 +233,21 @@ pub struct IcpResult {
     /// One record per iteration, in order (the last one is the solution's, with no step).
     pub history: Vec<IcpIteration>,
 }
+
+/// The extent of an ICP cycle ([`IcpResult::cycle`]): its period and its largest step's parts.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct IcpCycle {
+    /// Poses in the cycle (2 to [`MAX_CYCLE`]).
+    pub period: usize,
+    /// The largest rotation step within the cycle, radians.
+    pub rotation: f64,
+    /// The largest translation step within the cycle, cloud units.
+    pub translation: f64,
+}
+
+/// The longest cycle [`icp`] recognises: a plain step that lands within the tolerances of one of the last
+/// this many poses ends the iterations.
+pub const MAX_CYCLE: usize = 4;
 
 /// What one ICP iteration saw and did: its correspondences, the kept pairs' residuals and the step it took.
 /// Recording it changes no result.
@@ -943,6 +965,9 @@ fn icp_with(
     let mut last_kept: (Isometry3<f64>, Vec<Pair>) = (t, Vec::new());
     // What each source point's last search found: while it moves little, its answer stands.
     let mut memos = vec![NearestMemo::EMPTY; problem.source.len()];
+    // The poses the last iterations were evaluated at (most recent last) and the steps taken from them.
+    let mut recent: Vec<(Isometry3<f64>, f64, f64)> = Vec::with_capacity(MAX_CYCLE + 1);
+    let mut cycle = None;
     for it in 0..=cfg.max_iterations {
         let it_start = std::time::Instant::now();
         let mut pairs = problem.correspondences(&t, &mut memos);
@@ -998,6 +1023,7 @@ fn icp_with(
             pairs: keep,
             information: info,
             weighted_sse: wsse,
+            cycle: None,
             block_scores: Matrix6::zeros(),
             blocks: 0,
             history: Vec::new(),
@@ -1022,10 +1048,18 @@ fn icp_with(
         if rot < cfg.rotation_tolerance && tr < cfg.translation_tolerance {
             converged = true;
         }
-        // Acceleration only while the steps are large (100 tolerances): near the solution the plain
-        // steps are noise-sized and an extrapolation of them is mostly rejected, costing a pass each.
         let far = rot > ACCELERATE_TOLERANCES * cfg.rotation_tolerance
             || tr > ACCELERATE_TOLERANCES * cfg.translation_tolerance;
+        recent.push((t, rot, tr));
+        if recent.len() > MAX_CYCLE {
+            recent.remove(0);
+        }
+        if !converged && !far {
+            cycle = find_cycle(&recent, &plain, cfg);
+            converged = cycle.is_some();
+        }
+        // Acceleration only while the steps are large (100 tolerances): near the solution the plain
+        // steps are noise-sized and an extrapolation of them is mostly rejected, costing a pass each.
         t = match accel.as_mut() {
             Some(a) if far => a.propose(init, &t, plain),
             Some(a) => {
@@ -1040,8 +1074,35 @@ fn icp_with(
     (r.block_scores, r.blocks) = problem.block_scores(&kept, &kt);
     r.iterations = iterations;
     r.converged = converged;
+    r.cycle = cycle;
     r.history = history;
     Ok(r)
+}
+
+/// Whether the plain step to `next` returns to one of the `recent` poses before the current one (the last
+/// entry) within the tolerances: a cycle of period 2 to [`MAX_CYCLE`]. Its extent is the largest step taken
+/// from the poses in it. Pairs that alternate between two sets (a point near the boundary of two target
+/// points' cells, a pair trimmed and let in by turns) make such cycles: the steps stop shrinking though
+/// the pose goes nowhere.
+fn find_cycle(
+    recent: &[(Isometry3<f64>, f64, f64)],
+    next: &Isometry3<f64>,
+    cfg: &IcpConfig,
+) -> Option<IcpCycle> {
+    let n = recent.len();
+    (2..=n).find_map(|period| {
+        let d = increment_from(&recent[n - period].0, next);
+        let back = Vector3::new(d[0], d[1], d[2]).norm() < cfg.rotation_tolerance
+            && Vector3::new(d[3], d[4], d[5]).norm() < cfg.translation_tolerance;
+        back.then(|| {
+            let steps = &recent[n - period..];
+            IcpCycle {
+                period,
+                rotation: steps.iter().map(|s| s.1).fold(0.0, f64::max),
+                translation: steps.iter().map(|s| s.2).fold(0.0, f64::max),
+            }
+        })
+    })
 }
 
 #[cfg(test)]
@@ -1067,6 +1128,61 @@ mod tests {
                 .map(|v| v as f32)
             })
             .collect()
+    }
+
+    /// A pose `deg` degrees about z and `x` along x from the identity.
+    fn pose(deg: f64, x: f64) -> Isometry3<f64> {
+        Isometry3::new(
+            Vector3::new(x, 0.0, 0.0),
+            Vector3::new(0.0, 0.0, deg.to_radians()),
+        )
+    }
+
+    #[test]
+    fn a_step_back_to_an_earlier_pose_is_a_cycle_and_a_creep_is_not() {
+        let cfg = IcpConfig::default();
+        let step = |a: &Isometry3<f64>, b: &Isometry3<f64>| {
+            let d = increment_from(a, b);
+            (
+                Vector3::new(d[0], d[1], d[2]).norm(),
+                Vector3::new(d[3], d[4], d[5]).norm(),
+            )
+        };
+        // Two poses 0.01° / 0.1 mm apart, visited by turns: the next step lands back on the first.
+        let (a, b) = (pose(0.0, 0.0), pose(0.01, 1e-4));
+        let (r, t) = step(&a, &b);
+        let recent = [(a, r, t), (b, r, t)];
+        let c = find_cycle(&recent, &a, &cfg).expect("a period-2 cycle");
+        assert_eq!(c.period, 2);
+        assert!(
+            (c.rotation - 0.01f64.to_radians()).abs() < 1e-12
+                && (c.translation - 1e-4).abs() < 1e-12
+        );
+        // Three poses in turn; the largest step of the cycle is its extent.
+        let p = [pose(0.0, 0.0), pose(0.02, 0.0), pose(0.01, 3e-4)];
+        let recent: Vec<_> = (0..3)
+            .map(|k| {
+                let (r, t) = step(&p[k], &p[(k + 1) % 3]);
+                (p[k], r, t)
+            })
+            .collect();
+        let c = find_cycle(&recent, &p[0], &cfg).expect("a period-3 cycle");
+        assert_eq!(c.period, 3);
+        let largest = (0..3).map(|k| recent[k].1).fold(0.0, f64::max);
+        assert_eq!(c.rotation, largest);
+        assert!((c.translation - step(&p[1], &p[2]).1).abs() < 1e-12);
+        // Within the tolerances of the earlier pose is back; twice the rotation tolerance away is not.
+        let near = pose(1e-5f64.to_degrees() * 0.5, 0.0);
+        assert!(find_cycle(&recent[1..], &near, &cfg).is_none());
+        assert!(find_cycle(&recent, &near, &cfg).is_some());
+        assert!(find_cycle(&recent, &pose(2e-5f64.to_degrees(), 0.0), &cfg).is_none());
+        // A slow creep (each step twice the tolerances, always the same way) never comes back.
+        let creep: Vec<_> = (0..MAX_CYCLE)
+            .map(|k| (pose(0.0, 2e-5 * k as f64), 0.0, 2e-5))
+            .collect();
+        assert!(find_cycle(&creep, &pose(0.0, 2e-5 * MAX_CYCLE as f64), &cfg).is_none());
+        // A single pose (nothing before the current one) has no cycle.
+        assert!(find_cycle(&recent[..1], &a, &cfg).is_none());
     }
 
     #[test]

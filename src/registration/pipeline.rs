@@ -1569,8 +1569,9 @@ fn coarse_level_degeneracy(r: &IcpResult, s_sub: &[[f32; 3]], cfg: &RegisterConf
 /// Stage 7. Takes the ICP pyramid's result; gives the degeneracy (judged at the coarsest level) and the
 /// covariance of `[ω (rad), v (cloud units)]`: the envelope of `σ²(JᵀWJ)⁻¹` of the finest level and its
 /// cluster-robust covariance ([`sandwich_covariance`] with the re-associated curvature), plus the
-/// systematic floor of [`RegisterConfig::systematic_voxel_fraction`]. Adds a warning for a degenerate geometry and
-/// for ICP that did not converge.
+/// systematic floor of [`RegisterConfig::systematic_voxel_fraction`] and, when the finest ICP ended on a
+/// cycle, its extent ([`crate::registration::icp::IcpResult::cycle`]). Adds a warning for a degenerate
+/// geometry, for ICP that did not converge and for one that ended on a cycle.
 fn quality(
     p: &Pyramid,
     cfg: &RegisterConfig,
@@ -1611,6 +1612,19 @@ fn quality(
     for k in 0..3 {
         cov[(k, k)] += sys_r * sys_r;
         cov[(k + 3, k + 3)] += sys_t * sys_t;
+    }
+    // ICP that ended on a cycle leaves the answer anywhere on it: its largest step is one more 1-σ term.
+    if let Some(c) = &r.cycle {
+        warnings.push(format!(
+            "ICP ended on a cycle of {} poses (its pairs alternate between sets): the answer moves by up to {:.4}° / {:.3e} between them, included in the covariance",
+            c.period,
+            c.rotation.to_degrees(),
+            c.translation
+        ));
+        for k in 0..3 {
+            cov[(k, k)] += c.rotation * c.rotation;
+            cov[(k + 3, k + 3)] += c.translation * c.translation;
+        }
     }
     (deg, cov)
 }
