@@ -1616,7 +1616,7 @@ fn quality(
     // ICP that ended on a cycle leaves the answer anywhere on it: its largest step is one more 1-σ term.
     if let Some(c) = &r.cycle {
         warnings.push(format!(
-            "ICP ended on a cycle of {} poses (its pairs alternate between sets): the answer moves by up to {:.4}° / {:.3e} between them, included in the covariance",
+            "ICP ended on a cycle of {} poses (its pairs alternate between sets): the answer moves by up to {:.4}° / {:.3e} (cloud units) between them, included in the covariance",
             c.period,
             c.rotation.to_degrees(),
             c.translation
