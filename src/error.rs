@@ -242,6 +242,10 @@ mod tests {
         .validate()
         .unwrap_err();
         assert!(e.to_string().contains("max_range_factor"), "{e}");
+        // One range cut: calibrate's own, not the fusion's.
+        let mut c = CalibrateConfig::default();
+        c.fuse.max_range_factor = Some(2.0);
+        assert_eq!(field(c.validate()), "fuse.max_range_factor");
         let i = IcpConfig {
             max_correspondence_distance: 0.0,
             ..Default::default()

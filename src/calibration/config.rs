@@ -42,7 +42,9 @@ pub struct CalibrateConfig {
     /// grows with the square of the range, so a surface at 2.5 times the median range is about six times
     /// noisier than the workspace the cameras look at, and a wide far floor or wall then outweighs the
     /// shared objects in every stage (measured on foreign cells with a floor in view: untrusted without
-    /// the cut, 0.007° / 0.13 mm with it; 2.0 cost the demo cell 0.02° / 0.25 mm). The free-space test still uses whole frames.
+    /// the cut, 0.007° / 0.13 mm with it; 2.0 cost the demo cell 0.02° / 0.25 mm). The cut is made in
+    /// the fusion, before its surface fit (`fuse.max_range_factor` is set from it and must be left
+    /// out). The free-space test, the pose scatter and the hand-eye check still use whole frames.
     pub max_range_factor: Option<f64>,
     /// `--refine-hand-eye`: the per-robot hand-eye refinements from depth, the joint refinement of both
     /// hand-eyes with `T_base1_base2`, and whether its base-to-base transform is adopted
@@ -162,6 +164,12 @@ impl CalibrateConfig {
         self.consistency.validate()?;
         if let Some(f) = self.max_range_factor {
             crate::error::check::positive("max_range_factor", f)?;
+        }
+        if self.fuse.max_range_factor.is_some() {
+            return Err(Error::config(
+                "fuse.max_range_factor",
+                "calibrate has one range cut, `max_range_factor`; set it there",
+            ));
         }
         self.refine_hand_eye.validate()?;
         self.hand_eye_check.validate()?;

@@ -8,7 +8,7 @@ use crate::calibration::pose_scatter::{estimate_pose_scatter, PoseScatter};
 use crate::calibration::priors::CellPriors;
 use crate::cell::{Cell, CellRobot};
 use crate::error::Result;
-use crate::fusion::{fuse_robot, FusedCloud};
+use crate::fusion::{fuse_robot, FuseConfig, FusedCloud};
 use std::time::Instant;
 
 /// Both robots' fused clouds and the cell's priors: what [`crate::calibration::robot_to_robot::refine_cell`] and the initialisers work on.
@@ -139,10 +139,15 @@ fn pick_two<T: Clone>(v: &[T], i: usize, j: usize) -> Vec<T> {
 pub fn fuse_robots(robots: &[&CellRobot], cfg: &CalibrateConfig) -> Result<FusedRobots> {
     use rayon::prelude::*;
     let t0 = Instant::now();
+    // The range cut happens inside the fusion, before its costly surface fit.
+    let fuse_cfg = FuseConfig {
+        max_range_factor: cfg.max_range_factor,
+        ..cfg.fuse.clone()
+    };
     // Each fusion has sequential parts (index builds, voxel merges): the robots run side by side.
     let mut clouds: Vec<FusedCloud> = robots
         .par_iter()
-        .map(|r| fuse_robot(*r, &cfg.fuse, &|_| {}))
+        .map(|r| fuse_robot(*r, &fuse_cfg, &|_| {}))
         .collect::<Result<_>>()?;
     let fuse_ms = t0.elapsed().as_secs_f64() * 1e3;
     // Each robot's frames moved to agree with each other where their poses scatter, then fused again.
@@ -156,7 +161,7 @@ pub fn fuse_robots(robots: &[&CellRobot], cfg: &CalibrateConfig) -> Result<Fused
             .map(|(r, c)| {
                 let s = estimate_pose_scatter(r, &c.views, &cfg.pose_scatter)?;
                 let refused = if s.applied {
-                    Some(fuse_robot(&s.corrected(r), &cfg.fuse, &|_| {})?)
+                    Some(fuse_robot(&s.corrected(r), &fuse_cfg, &|_| {})?)
                 } else {
                     None
                 };
@@ -181,14 +186,11 @@ pub fn fuse_robots(robots: &[&CellRobot], cfg: &CalibrateConfig) -> Result<Fused
     for (c, r) in clouds.iter_mut().zip(robots) {
         // The side each surface was seen from travels with the points as their normals.
         c.make_sided();
-        if let Some(f) = cfg.max_range_factor {
-            let dropped = keep_within_range(c, f);
-            if dropped > 0 {
-                log::info!(
-                    "{}: {dropped} fused points beyond {f} x the median range left out of the registration",
-                    r.name
-                );
-            }
+        if let (Some(f), dropped @ 1..) = (cfg.max_range_factor, c.stats.range_cut) {
+            log::info!(
+                "{}: {dropped} fused points beyond {f} x the median range left out of the registration",
+                r.name
+            );
         }
     }
     let t1 = Instant::now();
@@ -224,32 +226,4 @@ pub fn fuse_robots(robots: &[&CellRobot], cfg: &CalibrateConfig) -> Result<Fused
         pose_scatter_ms,
         hand_eye_check_ms: t1.elapsed().as_secs_f64() * 1e3,
     })
-}
-
-/// Drops the points of `cloud` farther than `factor` times its median range from the cameras that saw them
-/// ([`CalibrateConfig::max_range_factor`]); returns the number dropped. The median is over the depth
-/// samples (each point weighted by the samples fused into it), i.e. about the median depth of the frames:
-/// per point, a wide far floor fills most voxels of the fused cloud while the cameras look at the workspace.
-fn keep_within_range(cloud: &mut FusedCloud, factor: f64) -> usize {
-    let ranges = cloud.ranges();
-    if ranges.is_empty() || cloud.counts.len() != ranges.len() {
-        return 0;
-    }
-    let mut order: Vec<(f32, u32)> = ranges
-        .iter()
-        .copied()
-        .zip(cloud.counts.iter().copied())
-        .collect();
-    order.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let total: u64 = order.iter().map(|&(_, c)| c as u64).sum();
-    let mut acc = 0u64;
-    let median = order
-        .iter()
-        .find(|&&(_, c)| {
-            acc += c as u64;
-            2 * acc >= total
-        })
-        .map_or(f32::INFINITY, |&(r, _)| r);
-    let limit = (factor * median as f64) as f32;
-    cloud.retain_points(|i| ranges[i] <= limit)
 }

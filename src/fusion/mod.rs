@@ -90,6 +90,10 @@ pub struct FuseConfig {
     /// Keep a low-resolution depth map of every frame with its pose ([`DepthView`], blocks of this many
     /// pixels) in [`FusedCloud::views`], for visibility tests; `None` (default) keeps none.
     pub depth_views: Option<u32>,
+    /// Keep only the voxels within this multiple of the median range (see [`within_median_range`]),
+    /// before the surface projection and everything after it; `None` (default) keeps every voxel.
+    /// `calibrate` sets it from its own `max_range_factor`.
+    pub max_range_factor: Option<f64>,
 }
 
 impl Default for FuseConfig {
@@ -104,6 +108,7 @@ impl Default for FuseConfig {
             normals: Some(NormalConfig::default()),
             surface: Some(SurfaceConfig::default()),
             depth_views: None,
+            max_range_factor: None,
         }
     }
 }
@@ -131,6 +136,14 @@ impl FuseConfig {
                 return bad(
                     "voxel_size_m",
                     format!("must be a positive number of metres, found {v}"),
+                );
+            }
+        }
+        if let Some(f) = self.max_range_factor {
+            if !(f.is_finite() && f > 0.0) {
+                return bad(
+                    "max_range_factor",
+                    format!("must be a positive number, found {f}"),
                 );
             }
         }
@@ -238,6 +251,8 @@ pub struct FuseStats {
     pub voxels: usize,
     /// Voxels dropped for having fewer than `min_points_per_voxel` samples.
     pub sparse_removed: usize,
+    /// Voxels dropped for lying beyond `max_range_factor` × the median range.
+    pub range_cut: usize,
     /// Points moved by the surface projection (before the merge of the voxels it brought together).
     pub surface_moved: usize,
     /// Points removed by the statistical outlier filter.
@@ -312,32 +327,6 @@ impl FusedCloud {
         self.to_viewpoints()
             .map(|d| (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt())
             .collect()
-    }
-
-    /// Keeps the points for which `keep(index)` holds (with their normals, colours, counts and
-    /// viewpoints); the views and the statistics are left as they are. Returns the number dropped.
-    pub fn retain_points(&mut self, keep: impl Fn(usize) -> bool) -> usize {
-        let mask: Vec<bool> = (0..self.cloud.points.len()).map(keep).collect();
-        let before = self.cloud.points.len();
-        fn filter<T: Copy>(v: &mut Vec<T>, mask: &[bool]) {
-            if v.len() == mask.len() {
-                let mut i = 0;
-                v.retain(|_| {
-                    i += 1;
-                    mask[i - 1]
-                });
-            }
-        }
-        filter(&mut self.cloud.points, &mask);
-        if let Some(n) = self.cloud.normals.as_mut() {
-            filter(n, &mask);
-        }
-        if let Some(c) = self.cloud.colors.as_mut() {
-            filter(c, &mask);
-        }
-        filter(&mut self.counts, &mask);
-        filter(&mut self.viewpoints, &mask);
-        before - self.cloud.points.len()
     }
 }
 
@@ -716,7 +705,45 @@ fn merge_voxels(v: VoxelCloud, voxel: f64) -> VoxelCloud {
     out
 }
 
-/// Removes sparse voxels and outliers and estimates oriented normals (the steps after voxel fusion).
+/// The indices (ascending) of the points no farther than `factor` times the median range from their
+/// viewpoints (the mean camera centre of the samples fused into each, [`FusedCloud::viewpoints`]). The
+/// median is over the depth samples: each point weighs as many samples as were fused into it (`counts`),
+/// so it is about the median depth of the frames, whereas per point a wide far floor fills most voxels
+/// while the cameras look at the workspace. Every point is kept when the slices differ in length.
+pub fn within_median_range(
+    points: &[[f32; 3]],
+    viewpoints: &[[f32; 3]],
+    counts: &[u32],
+    factor: f64,
+) -> Vec<usize> {
+    if viewpoints.len() != points.len() || counts.len() != points.len() {
+        return (0..points.len()).collect();
+    }
+    let ranges: Vec<f32> = points
+        .iter()
+        .zip(viewpoints)
+        .map(|(p, v)| {
+            let d = [v[0] - p[0], v[1] - p[1], v[2] - p[2]];
+            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+        })
+        .collect();
+    let mut order: Vec<(f32, u32)> = ranges.iter().copied().zip(counts.iter().copied()).collect();
+    order.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let total: u64 = order.iter().map(|&(_, c)| c as u64).sum();
+    let mut acc = 0u64;
+    let median = order
+        .iter()
+        .find(|&&(_, c)| {
+            acc += c as u64;
+            2 * acc >= total
+        })
+        .map_or(f32::INFINITY, |&(r, _)| r);
+    let limit = (factor * median as f64) as f32;
+    (0..points.len()).filter(|&i| ranges[i] <= limit).collect()
+}
+
+/// Removes sparse voxels, far voxels ([`FuseConfig::max_range_factor`]) and outliers and estimates oriented
+/// normals (the steps after voxel fusion).
 pub fn finish_fusion(v: VoxelCloud, cfg: &FuseConfig) -> Result<FusedCloud> {
     let mut stats = v.stats.clone();
     let mut keep: Vec<usize> = (0..v.points.len())
@@ -734,6 +761,14 @@ pub fn finish_fusion(v: VoxelCloud, cfg: &FuseConfig) -> Result<FusedCloud> {
     } else {
         v
     };
+    // Before the surface projection: it is the costly step, and its fits far out would be cut anyway.
+    if let Some(f) = cfg.max_range_factor {
+        keep = within_median_range(&v.points, &v.viewpoints, &v.counts, f);
+        stats.range_cut = v.points.len() - keep.len();
+        if stats.range_cut > 0 {
+            v = pick(&keep, &v);
+        }
+    }
     if let Some(sc) = cfg.surface.as_ref().filter(|_| v.points.len() >= 3) {
         let index = KdIndex::new(&v.points);
         let voxel = stats.voxel_size_m;

@@ -226,3 +226,83 @@ fn auto_voxel_follows_the_pixel_footprint() {
     )
     .is_none());
 }
+
+#[test]
+fn the_range_cut_keeps_what_lies_within_the_sample_weighted_median() {
+    // Oracle: every sample spelled out, sorted, the lower median.
+    let mut rng = crate::geometry::Rng::new(7);
+    for n in [1usize, 2, 7, 300] {
+        let points: Vec<[f32; 3]> = (0..n)
+            .map(|_| std::array::from_fn(|_| rng.uniform(-3.0, 3.0) as f32))
+            .collect();
+        let viewpoints: Vec<[f32; 3]> = (0..n)
+            .map(|_| std::array::from_fn(|_| rng.uniform(-0.5, 0.5) as f32))
+            .collect();
+        let counts: Vec<u32> = (0..n).map(|_| rng.uniform(1.0, 40.0) as u32).collect();
+        let range = |i: usize| {
+            let d: [f32; 3] = std::array::from_fn(|k| viewpoints[i][k] - points[i][k]);
+            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+        };
+        let mut samples: Vec<f32> = (0..n)
+            .flat_map(|i| std::iter::repeat_n(range(i), counts[i] as usize))
+            .collect();
+        samples.sort_by(f32::total_cmp);
+        let median = samples[samples.len().div_ceil(2) - 1];
+        for factor in [0.5, 1.0, 2.5] {
+            let limit = (factor * median as f64) as f32;
+            let want: Vec<usize> = (0..n).filter(|&i| range(i) <= limit).collect();
+            assert_eq!(
+                within_median_range(&points, &viewpoints, &counts, factor),
+                want,
+                "{n} points, factor {factor}"
+            );
+        }
+    }
+    // Without one viewpoint or count per point nothing is cut.
+    assert_eq!(
+        within_median_range(&[[1.0; 3]; 3], &[[0.0; 3]; 2], &[1; 3], 0.1),
+        vec![0, 1, 2]
+    );
+}
+
+#[test]
+fn the_range_cut_is_made_in_the_fusion() {
+    let cfg = FuseConfig {
+        outlier: None,
+        normals: None,
+        ..Default::default()
+    };
+    let (all, _) = fuse_scene(&cfg);
+    assert_eq!(all.stats.range_cut, 0);
+    let ranges = all.ranges();
+    let (near, scene) = fuse_scene(&FuseConfig {
+        max_range_factor: Some(1.0),
+        ..cfg.clone()
+    });
+    // About half the samples lie beyond the median range; the far voxels are the sparse ones.
+    assert!(near.stats.range_cut > 0);
+    assert!(near.cloud.len() < all.cloud.len());
+    // Every point kept lies within the median range of the samples, up to what the surface fit moves a
+    // point (a few millimetres here).
+    let mut samples: Vec<f32> = ranges
+        .iter()
+        .zip(&all.counts)
+        .flat_map(|(&r, &c)| std::iter::repeat_n(r, c as usize))
+        .collect();
+    samples.sort_by(f32::total_cmp);
+    let median = samples[samples.len().div_ceil(2) - 1];
+    let farthest = near.ranges().into_iter().fold(0.0, f32::max);
+    assert!(farthest <= median + 0.005, "{farthest} > {median}");
+    assert!(farthest > 0.9 * median, "{farthest} against {median}");
+    // What is kept is fused as before: on the scene's surface.
+    assert!(near.cloud.points.iter().all(|p| scene.distance(p) < 0.0015));
+    for bad in [0.0, -1.0, f64::NAN] {
+        let e = FuseConfig {
+            max_range_factor: Some(bad),
+            ..cfg.clone()
+        }
+        .validate()
+        .unwrap_err();
+        assert!(e.to_string().contains("fuse.max_range_factor"), "{e}");
+    }
+}
