@@ -324,9 +324,7 @@ impl FusedCloud {
     /// Distance from each point to its mean camera centre ([`FusedCloud::viewpoints`]), metres. Empty
     /// when the cloud has no viewpoints.
     pub fn ranges(&self) -> Vec<f32> {
-        self.to_viewpoints()
-            .map(|d| (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt())
-            .collect()
+        ranges_of(&self.cloud.points, &self.viewpoints)
     }
 }
 
@@ -705,6 +703,21 @@ fn merge_voxels(v: VoxelCloud, voxel: f64) -> VoxelCloud {
     out
 }
 
+/// Distance from each point to its viewpoint, metres; empty unless there is one viewpoint per point.
+fn ranges_of(points: &[[f32; 3]], viewpoints: &[[f32; 3]]) -> Vec<f32> {
+    if viewpoints.len() != points.len() {
+        return Vec::new();
+    }
+    points
+        .iter()
+        .zip(viewpoints)
+        .map(|(p, v)| {
+            let d = [v[0] - p[0], v[1] - p[1], v[2] - p[2]];
+            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+        })
+        .collect()
+}
+
 /// The indices (ascending) of the points no farther than `factor` times the median range from their
 /// viewpoints (the mean camera centre of the samples fused into each, [`FusedCloud::viewpoints`]). The
 /// median is over the depth samples: each point weighs as many samples as were fused into it (`counts`),
@@ -719,14 +732,7 @@ pub fn within_median_range(
     if viewpoints.len() != points.len() || counts.len() != points.len() {
         return (0..points.len()).collect();
     }
-    let ranges: Vec<f32> = points
-        .iter()
-        .zip(viewpoints)
-        .map(|(p, v)| {
-            let d = [v[0] - p[0], v[1] - p[1], v[2] - p[2]];
-            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
-        })
-        .collect();
+    let ranges = ranges_of(points, viewpoints);
     let mut order: Vec<(f32, u32)> = ranges.iter().copied().zip(counts.iter().copied()).collect();
     order.sort_by(|a, b| a.0.total_cmp(&b.0));
     let total: u64 = order.iter().map(|&(_, c)| c as u64).sum();
