@@ -1630,10 +1630,10 @@ fn quality(
 }
 
 /// The warning a degenerate result carries (`None` when no direction is weak): "unconstrained" only when
-/// the geometry leaves some direction free ([`Degeneracy::free_by_geometry`]), else "held only weakly".
+/// some direction is free ([`Degeneracy::is_free`]), else "held only weakly".
 fn degeneracy_warning(deg: &Degeneracy) -> Option<String> {
     deg.is_degenerate().then(|| {
-        let free = deg.weak.iter().any(|w| deg.free_by_geometry(w));
+        let free = deg.weak.iter().any(|w| deg.is_free(w));
         format!(
             "{DEGENERACY_WARNING} {}: {} (the result may slide along it)",
             if free {

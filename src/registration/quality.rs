@@ -99,6 +99,12 @@ impl HoldTest {
     }
 }
 
+/// The least gap (as a fraction of the step) at which the hold test's two ends lie along a noisy bare
+/// plane's free directions: they ended 0.54 of the step apart or more (ICP closed at most 73 % of the
+/// distance between its starts; docs/accuracy.md, "The hold test's bar"), so a gap below half the step is
+/// more than a plane's noise pulls back.
+pub const PLANE_HOLD_FRACTION: f64 = 0.5;
+
 /// Degeneracy analysis of an information matrix.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Degeneracy {
@@ -132,6 +138,15 @@ impl Degeneracy {
     /// [`Degeneracy::free_below`], a bare plane's level.
     pub fn free_by_geometry(&self, w: &WeakDirection) -> bool {
         w.relative_strength < self.free_below
+    }
+
+    /// Whether `w` is unconstrained, as far as was measured: its strength is at a bare plane's level
+    /// ([`Degeneracy::free_by_geometry`]) and, where the hold test ran, ICP started off along it came back
+    /// no further than along a bare plane's free directions (its two ends at least [`PLANE_HOLD_FRACTION`]
+    /// of the step apart). A direction as weak as a plane's along which ICP closed more of the distance is
+    /// pulled back by something: weakly constrained, not free.
+    pub fn is_free(&self, w: &WeakDirection) -> bool {
+        self.free_by_geometry(w) && w.hold.is_none_or(|h| h.fraction() >= PLANE_HOLD_FRACTION)
     }
 
     /// A one-line human description, e.g. "translation along (0.00, 0.00, 1.00) is unconstrained".

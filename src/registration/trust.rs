@@ -117,10 +117,11 @@ const LOOSE_BELOW_FRACTION: f64 = 0.25;
 /// Why a degenerate registration is not trusted, true of what was measured, one reason per kind of weak
 /// direction, each with its figures:
 /// - "unconstrained": the geometry leaves it free (its relative strength below
-///   [`Degeneracy::free_below`], a bare plane's level) and ICP started off along it stayed off, or it was
-///   judged by its eigenvalue alone (no hold test);
-/// - "constrains only weakly": the geometry does constrain it (above a bare plane's level) but ICP started
-///   off along it stayed off: the basin is too flat for the refinement, not free;
+///   [`Degeneracy::free_below`], a bare plane's level) and ICP started off along it stayed as far off as
+///   along a bare plane ([`Degeneracy::is_free`]), or it was judged by its eigenvalue alone (no hold test);
+/// - "constrains only weakly": the geometry does constrain it (above a bare plane's level, or ICP came
+///   back further than a bare plane lets it) but ICP started off along it stayed off: the basin is too
+///   flat for the refinement, not free;
 /// - "held only loosely": ICP came most of the way back, not to one answer.
 fn degeneracy_reasons(d: &Degeneracy, unit: &str) -> Vec<String> {
     let item = |w: &WeakDirection| {
@@ -136,7 +137,7 @@ fn degeneracy_reasons(d: &Degeneracy, unit: &str) -> Vec<String> {
     };
     let loose = |w: &WeakDirection| w.hold.is_some_and(|h| h.fraction() < LOOSE_BELOW_FRACTION);
     let mut out = Vec::new();
-    let free = |w: &WeakDirection| !loose(w) && (w.hold.is_none() || d.free_by_geometry(w));
+    let free = |w: &WeakDirection| !loose(w) && (w.hold.is_none() || d.is_free(w));
     if let Some(items) = group(&free) {
         // Only a direction the hold test ran on says what ICP did.
         let tested = d.weak.iter().any(|w| free(w) && w.hold.is_some());
@@ -149,7 +150,7 @@ fn degeneracy_reasons(d: &Degeneracy, unit: &str) -> Vec<String> {
             }
         ));
     }
-    if let Some(items) = group(&|w| !loose(w) && w.hold.is_some() && !d.free_by_geometry(w)) {
+    if let Some(items) = group(&|w| !loose(w) && w.hold.is_some() && !d.is_free(w)) {
         out.push(format!(
             "the geometry constrains the result only weakly ({items}): ICP started off along it stayed off, so the result may lie anywhere between"
         ));
@@ -290,6 +291,17 @@ mod tests {
             "{weakly}"
         );
         assert!(!weakly.contains("unconstrained"), "{weakly}");
+        // As weak as a bare plane's, but ICP closed more of the distance than a plane lets it (ends 0.3 of
+        // the step apart): pulled back by something, so weakly constrained, not free.
+        let pulled = reason(vec![yaw(Some((0.007, 0.0021)))]);
+        assert!(
+            pulled.contains("constrains the result only weakly")
+                && !pulled.contains("unconstrained"),
+            "{pulled}"
+        );
+        // At a plane's gap (half the step and more) it is free.
+        let plane = reason(vec![yaw(Some((0.007, 0.0035)))]);
+        assert!(plane.contains("unconstrained"), "{plane}");
         // One loose and one free direction: each is named for what it is.
         let both = reason(vec![yaw(Some((0.007, 0.0011))), yaw(Some((0.007, 0.011)))]);
         assert!(
