@@ -32,7 +32,7 @@ use crate::calibration::visibility::{
 use crate::error::Result;
 use crate::geometry::cloud::{to_p64, PointCloud};
 use crate::geometry::transform::pose_error;
-use crate::registration::pipeline::Ambiguity;
+use crate::registration::pipeline::{cloud_fingerprint, prepare_refinement, Ambiguity};
 use crate::registration::{
     register_request, PreparedLevels, RegisterConfig, RegisterRequest, Registration,
 };
@@ -213,6 +213,24 @@ pub fn refine_and_judge(
     test: Option<&FreeSpaceTest>,
     prepared: &PreparedLevels,
 ) -> Result<Vec<Judged>> {
+    // Clouds that several hypotheses share (no robot body cut, or the same cut) get their levels prepared
+    // once, before the refinements start side by side and would each prepare them at once. The clouds are
+    // told apart by their fingerprints (a collision only prepares levels no one asks for: the memo
+    // compares whole clouds) and made again where needed, so that no more of them are held at once than
+    // before.
+    let prints: Vec<(u64, u64)> = starts
+        .par_iter()
+        .map(|start| {
+            let (reference, other) = without_robot_bodies(fused, start, body);
+            (cloud_fingerprint(&reference), cloud_fingerprint(&other))
+        })
+        .collect();
+    for (k, p) in prints.iter().enumerate() {
+        if !prints[..k].contains(p) && prints[k + 1..].contains(p) {
+            let (reference, other) = without_robot_bodies(fused, &starts[k], body);
+            prepare_refinement(&other, &reference, rcfg, prepared)?;
+        }
+    }
     let refined: Vec<Result<Judged>> = starts
         .par_iter()
         .map(|start| {

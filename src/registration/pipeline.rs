@@ -451,6 +451,12 @@ impl<K, V: Clone> Kept<K, V> {
     }
 }
 
+/// A fingerprint of `c`'s positions and normals (the hash [`PreparedLevels`] files its entries under):
+/// equal clouds have equal fingerprints.
+pub(crate) fn cloud_fingerprint(c: &PointCloud) -> u64 {
+    CloudKey::hash_of(c)
+}
+
 /// A stored cloud's positions and normals (copied only when an entry is stored), and their hash.
 struct CloudKey {
     hash: u64,
@@ -1245,14 +1251,7 @@ fn icp_pyramid(
     let mut traces = Vec::new();
     let levels = cfg.icp_levels.max(1);
     for level in 0..levels {
-        // The last level is clamped to the finest useful voxel (the cloud's own resolution).
-        // A level within 1.5x of the finest goes straight to the finest (one level fewer, same result).
-        let mut v = voxel / (1u64 << level) as f64;
-        let near_finest = level > 0 && v < 1.5 * finest;
-        let last_level = level + 1 == levels || near_finest;
-        if near_finest {
-            v = finest;
-        }
+        let (v, last_level) = level_voxel(voxel, finest, level, levels);
         let level_start = Instant::now();
         // Finer levels' target normals are computed on first use, for the points ICP pairs.
         let lazy = level > 0 && lazy_normals_ok(cfg);
@@ -1364,6 +1363,51 @@ fn icp_pyramid(
         coarse_degeneracy: coarse_degeneracy.expect("level 0 always runs"),
         traces,
     })
+}
+
+/// The voxel (cloud units) of ICP level `level` of `levels` from the global `voxel`, and whether it is the
+/// last: voxel, voxel/2, ...; the last level is clamped to the finest useful voxel `finest` (the clouds' own
+/// resolution), and a level within 1.5x of it goes straight to it (one level fewer, the same result).
+fn level_voxel(voxel: f64, finest: f64, level: usize, levels: usize) -> (f64, bool) {
+    let v = voxel / (1u64 << level) as f64;
+    let near_finest = level > 0 && v < 1.5 * finest;
+    let last = level + 1 == levels || near_finest;
+    (if near_finest { finest } else { v }, last)
+}
+
+/// Prepares into `memo` every level that a refinement of `source` onto `target` from a given start under
+/// `cfg` asks for ([`register_request`] with `initial` and `prepared: Some(memo)`: the cleaned clouds'
+/// spacings, the global level and each finer ICP level, with their normals and covariances), with the
+/// pool's threads on each. Several refinements of the same clouds started side by side then find them
+/// all in the memo, where each would otherwise compute the same levels at the same time (the memo never
+/// waits on a computation in progress). Changes no result: an entry is what the refinement computes.
+/// Not prepared: the finest target in full for the hold test of a refinement whose finer targets get
+/// their normals as ICP pairs them (point-to-plane without a normal gate; `calibrate`'s GICP prepares it).
+pub fn prepare_refinement(
+    source: &PointCloud,
+    target: &PointCloud,
+    cfg: &RegisterConfig,
+    memo: &PreparedLevels,
+) -> Result<()> {
+    let Cleaned {
+        source: src,
+        target: tgt,
+        ..
+    } = clean(source, target, cfg)?;
+    let Scale { spacing, voxel } = scale(&src, &tgt, cfg, Some(memo))?;
+    let gicp = cfg.icp.factor == IcpFactor::Gicp;
+    prepared(Some(memo), &src, voxel, cfg, false, gicp)?;
+    prepared(Some(memo), &tgt, voxel, cfg, false, gicp)?;
+    let finest = cfg.icp_min_voxel_spacings * spacing[0].max(spacing[1]);
+    let levels = cfg.icp_levels.max(1);
+    for level in 1..levels {
+        let (v, last) = level_voxel(voxel, finest, level, levels);
+        icp_level_clouds(&src, &tgt, v, cfg, lazy_normals_ok(cfg), Some(memo))?;
+        if last {
+            break;
+        }
+    }
+    Ok(())
 }
 
 /// The ICP settings of a level of voxel `v` (cloud units): correspondences within
@@ -1982,6 +2026,57 @@ mod tests {
         assert!(entries() > kept, "the moved cloud was served stored levels");
         let other_alone = register(&moved, &target, Some(&start), &cfg).unwrap();
         assert_eq!(bits(&other), bits(&other_alone));
+    }
+
+    /// [`prepare_refinement`] prepares every level a refinement from a given start asks for: the refinement
+    /// that follows prepares nothing more, and gives, bit for bit, what it gives alone. For GICP (levels
+    /// with covariances, the hold test on) and point-to-plane (finer targets' normals computed as ICP pairs
+    /// them; the hold test off, as it prepares its finest target in full).
+    #[test]
+    fn a_prepared_refinement_prepares_nothing_more() {
+        let truth = Isometry3::new(Vector3::new(0.03, -0.02, 0.01), Vector3::z() * 0.02);
+        let start = Isometry3::new(Vector3::new(0.035, -0.015, 0.01), Vector3::z() * 0.025);
+        let target = floor_scene(true, 1);
+        let source = floor_scene(true, 2).transformed(&truth.inverse());
+        let slide = RegisterConfig::default().degeneracy_slide_voxels;
+        for (factor, slide) in [(IcpFactor::Gicp, slide), (IcpFactor::PointToPlane, 0.0)] {
+            let cfg = RegisterConfig {
+                icp: IcpConfig {
+                    factor,
+                    ..IcpConfig::default()
+                },
+                icp_levels: 3,
+                sided: false,
+                degeneracy_test_threshold: 0.5,
+                degeneracy_slide_voxels: slide,
+                ..RegisterConfig::default()
+            };
+            let shared = PreparedLevels::new();
+            prepare_refinement(&source, &target, &cfg, &shared).unwrap();
+            let entries = || {
+                (
+                    shared.levels.entries.lock().unwrap().len(),
+                    shared.spacings.entries.lock().unwrap().len(),
+                )
+            };
+            let kept = entries();
+            assert!(kept.0 >= 2 && kept.1 == 2, "{factor:?}: {kept:?} kept");
+            let with = register_request(RegisterRequest {
+                initial: Some(&start),
+                prepared: Some(&shared),
+                ..RegisterRequest::new(&source, &target, &cfg)
+            })
+            .unwrap();
+            assert_eq!(
+                entries(),
+                kept,
+                "{factor:?}: the refinement prepared a level"
+            );
+            let alone = register(&source, &target, Some(&start), &cfg).unwrap();
+            let bits = |r: &Registration| r.transform.to_homogeneous().map(|x| x.to_bits());
+            assert_eq!(bits(&with), bits(&alone), "{factor:?}");
+            assert_eq!(with.covariance, alone.covariance, "{factor:?}");
+        }
     }
 
     /// From a given start, point-to-plane registration prepares its first level bare (normals computed as
