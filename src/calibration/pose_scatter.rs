@@ -751,22 +751,33 @@ mod tests {
         (sum / k as f64).sqrt() * 1e3
     }
 
-    #[test]
-    fn scattered_poses_are_moved_to_agree() {
-        let truth = cameras(8);
-        let mut rng = Rng::new(7);
-        let noisy: Vec<Isometry3<f64>> = truth
+    /// `truth` with each pose moved by seeded normal noise of 1-σ `sigma_m` (metres) and `sigma_deg`
+    /// (degrees) per axis.
+    fn scattered(
+        truth: &[Isometry3<f64>],
+        seed: u64,
+        sigma_m: f64,
+        sigma_deg: f64,
+    ) -> Vec<Isometry3<f64>> {
+        let mut rng = Rng::new(seed);
+        truth
             .iter()
             .map(|t| {
                 let mut g = || rng.normal();
-                let dt = Vector3::new(g(), g(), g()) * 1.5e-3;
-                let dr = Vector3::new(g(), g(), g()) * 0.1f64.to_radians();
+                let dt = Vector3::new(g(), g(), g()) * sigma_m;
+                let dr = Vector3::new(g(), g(), g()) * sigma_deg.to_radians();
                 Isometry3::from_parts(
                     Translation3::from(t.translation.vector + dt),
                     UnitQuaternion::from_scaled_axis(dr) * t.rotation,
                 )
             })
-            .collect();
+            .collect()
+    }
+
+    #[test]
+    fn scattered_poses_are_moved_to_agree() {
+        let truth = cameras(8);
+        let noisy = scattered(&truth, 7, 1.5e-3, 0.1);
         let (robot, views) = cell(&truth, &noisy);
         let s = estimate_pose_scatter(&robot, &views, &PoseScatterConfig::default()).unwrap();
         assert!(s.estimated && s.applied, "{s:?}");
@@ -900,15 +911,7 @@ mod tests {
     #[test]
     fn the_early_stop_changes_the_estimate_by_less_than_its_tolerance() {
         let truth = cameras(8);
-        let mut rng = Rng::new(11);
-        let noisy: Vec<Isometry3<f64>> = truth
-            .iter()
-            .map(|t| {
-                let mut g = || rng.normal();
-                let dt = Vector3::new(g(), g(), g()) * 1.0e-3;
-                Isometry3::from_parts(Translation3::from(t.translation.vector + dt), t.rotation)
-            })
-            .collect();
+        let noisy = scattered(&truth, 11, 1.0e-3, 0.0);
         for poses in [&truth, &noisy] {
             let (robot, views) = cell(&truth, poses);
             let every = PoseScatterConfig {
