@@ -103,6 +103,42 @@ fn bases_on_top_of_each_other_are_not_trusted() {
     assert!(err.contains("min_base_distance_m"), "{err}");
 }
 
+/// The precision bound: the demo cell's registration leaves a 1-σ of a few hundredths of a degree and a
+/// fraction of a millimetre, so with the bound set below that the same answer is not trusted and the reason
+/// gives the spread and the bound; the default trusts it.
+#[test]
+fn an_answer_the_geometry_pins_too_loosely_is_not_trusted() {
+    let dir = common::scratch("precision-bound");
+    let tight = dir.join("tight.json");
+    std::fs::write(
+        &tight,
+        r#"{"max_registration_sigma_deg": 0.001, "max_registration_sigma_m": null}"#,
+    )
+    .unwrap();
+    let (code, out, err) = depthcal(&[
+        "calibrate",
+        DEMO,
+        "--json",
+        "--threads",
+        "2",
+        "--config",
+        tight.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 3, "{err}");
+    let v = json(&out);
+    assert_eq!(v["trusted"], false);
+    let reasons = v["reasons"].to_string();
+    assert!(
+        reasons.contains("the geometry pins the answer only to")
+            && reasons.contains("more than the 0.001° / none"),
+        "{reasons}"
+    );
+    // The answer is the default run's: the bound reads the result, it does not change it.
+    let (code, def, err) = depthcal(&["calibrate", DEMO, "--json", "--threads", "2"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(json(&def)["transform"], v["transform"]);
+}
+
 /// A cell of three robots whose third is the second's frames again under another name: each pair with
 /// the reference is trusted on its own, but the joint solution puts two bases on one footprint, so
 /// neither is trusted (exit 3); every robot is in the JSON.

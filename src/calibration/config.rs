@@ -19,9 +19,9 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct CalibrateConfig {
-    /// Fusion of each robot's frames (default: automatic voxel at 4 pixel footprints, no outlier removal
-    /// (the trimmed ICP and the robust kernel deal with stray points), no normals (registration estimates
-    /// its own)).
+    /// Fusion of each robot's frames (default: automatic voxel at 4 pixel footprints, at most 11 mm, no
+    /// outlier removal (the trimmed ICP and the robust kernel deal with stray points), no normals
+    /// (registration estimates its own)).
     pub fuse: FuseConfig,
     /// Registration settings for the refinement (and for the depth initialiser): three ICP levels and
     /// one-way feature matches by default.
@@ -69,6 +69,15 @@ pub struct CalibrateConfig {
     /// side of the workspace, the clouds laid on each other (the bases 6-77 mm apart) explained the data
     /// better than the truth and were the answer on 4 of 10 wrong low-overlap cells (docs/accuracy.md).
     pub min_base_distance_m: f64,
+    /// The largest 1-σ over rotation directions, degrees, that the registration alone (its covariance
+    /// without the inputs': hand-eyes, poses) may leave in a trusted result (default 1°; `None`: no
+    /// bound). With [`CalibrateConfig::max_registration_sigma_m`] ten times what a right answer is held to
+    /// on the simulated cells (0.1° / 2 mm): an answer the geometry pins only that loosely is not one to
+    /// use, however its hold test came out. Measured on ~1,300 sweep cells: right and trusted answers
+    /// leave at most 0.74° / 6.0 mm, the real 7-Scenes cell 0.19° / 11.2 mm (docs/accuracy.md).
+    pub max_registration_sigma_deg: Option<f64>,
+    /// The same over translation directions, metres (default 0.02; `None`: no bound).
+    pub max_registration_sigma_m: Option<f64>,
     /// Cells of three or more robots: the pose graph over the pairwise results
     /// (`calibration::multi_robot`, which builds on this module).
     pub pose_graph: crate::calibration::pose_graph::PoseGraphConfig,
@@ -79,6 +88,12 @@ impl Default for CalibrateConfig {
         CalibrateConfig {
             fuse: FuseConfig {
                 auto_voxel_factor: 4.0,
+                // Coarser than 11 mm, the fused clouds blur the objects that pin the rotation: on the 178
+                // kept cells whose automatic voxel was coarser (424-pixel cameras, a far floor in the first
+                // frame), 128 right and trusted and 3 wrong and trusted became 140 and 0 (chosen on seeds
+                // 5000-9005; over 1290 cells of seeds 1000-11005, with the precision bound below, 7 wrong
+                // and trusted became 2: docs/accuracy.md, "The fusion voxel's largest edge").
+                max_auto_voxel_m: Some(0.011),
                 outlier: None,
                 normals: None,
                 // Each frame's depth in 4x4-pixel blocks, for the free-space test of the hypotheses.
@@ -133,6 +148,8 @@ impl Default for CalibrateConfig {
             search: SearchConfig::default(),
             pose_scatter: PoseScatterConfig::default(),
             min_base_distance_m: 0.12,
+            max_registration_sigma_deg: Some(1.0),
+            max_registration_sigma_m: Some(0.02),
             pose_graph: Default::default(),
         }
     }
@@ -177,6 +194,12 @@ impl CalibrateConfig {
         self.pose_scatter.validate()?;
         self.search.validate()?;
         crate::error::check::non_negative("min_base_distance_m", self.min_base_distance_m)?;
+        if let Some(v) = self.max_registration_sigma_deg {
+            crate::error::check::positive("max_registration_sigma_deg", v)?;
+        }
+        if let Some(v) = self.max_registration_sigma_m {
+            crate::error::check::positive("max_registration_sigma_m", v)?;
+        }
         self.pose_graph.validate()?;
         Ok(())
     }

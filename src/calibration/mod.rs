@@ -18,6 +18,7 @@ pub mod plan;
 pub mod plan_robots;
 pub mod pose_graph;
 pub mod pose_scatter;
+pub mod precision;
 pub mod priors;
 pub mod robot_to_robot;
 pub mod routes;

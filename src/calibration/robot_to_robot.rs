@@ -476,6 +476,13 @@ pub fn refine_pair(
     out.icp_levels = reg.icp_levels;
     timer.lap("checks");
     out.trust = calibration_trust(&out, &priors, cfg.min_base_distance_m, Some(&reg.trust));
+    let spread = crate::calibration::precision::Spread::of(&reg.covariance);
+    if let Some(why) = spread.excess(cfg.max_registration_sigma_deg, cfg.max_registration_sigma_m) {
+        out.trust.fail(
+            why,
+            "capture views of more distinct objects both robots see, or give an initialiser (--method marker|checkerboard|features)",
+        );
+    }
     out.timings_ms = timer.wall_ms();
     Ok(out)
 }

@@ -72,6 +72,9 @@ pub struct FuseConfig {
     /// 25 Kinect frames, 2.0 gives 1.7 M points and 5.5 s with outlier removal and normals, 3.0 gives
     /// 0.72 M points and 2.7 s, of which fusion itself is 0.34 s).
     pub auto_voxel_factor: f64,
+    /// The automatic voxel's largest edge, metres (a voxel given in `voxel_size_m` is not bounded);
+    /// `None` (default): no bound. `calibrate` sets 11 mm.
+    pub max_auto_voxel_m: Option<f64>,
     /// Voxels with fewer samples than this are dropped (default 1: keep all).
     pub min_points_per_voxel: u32,
     /// Depth range and flying-pixel filter.
@@ -101,6 +104,7 @@ impl Default for FuseConfig {
         FuseConfig {
             voxel_size_m: None,
             auto_voxel_factor: 3.0,
+            max_auto_voxel_m: None,
             min_points_per_voxel: 1,
             deproject: DeprojectConfig::default(),
             crop: None,
@@ -135,6 +139,14 @@ impl FuseConfig {
             if !(v.is_finite() && v > 0.0) {
                 return bad(
                     "voxel_size_m",
+                    format!("must be a positive number of metres, found {v}"),
+                );
+            }
+        }
+        if let Some(v) = self.max_auto_voxel_m {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(
+                    "max_auto_voxel_m",
                     format!("must be a positive number of metres, found {v}"),
                 );
             }
@@ -868,6 +880,7 @@ fn resolve_voxel<'a>(
     }
     images
         .find_map(|img| auto_voxel_size(img, intr, &cfg.deproject, cfg.auto_voxel_factor))
+        .map(|v| cfg.max_auto_voxel_m.map_or(v, |m| v.min(m)))
         .ok_or_else(|| {
             Error::InvalidInput(
                 "no frame has valid depth in the depth range; cannot choose a voxel size".into(),
@@ -929,6 +942,7 @@ pub fn fuse_robot(
                     &cfg.deproject,
                     cfg.auto_voxel_factor,
                 )
+                .map(|v| cfg.max_auto_voxel_m.map_or(v, |m| v.min(m)))
             };
             let mut found = auto(&first);
             let mut i = 1;

@@ -228,6 +228,52 @@ fn auto_voxel_follows_the_pixel_footprint() {
 }
 
 #[test]
+fn the_automatic_voxel_is_bounded_by_its_largest_edge() {
+    let cfg = FuseConfig {
+        outlier: None,
+        normals: None,
+        surface: None,
+        ..Default::default()
+    };
+    let (free, _) = fuse_scene(&cfg);
+    let auto = free.stats.voxel_size_m;
+    // A bound above the automatic voxel changes nothing; one below it is the voxel used.
+    let (above, _) = fuse_scene(&FuseConfig {
+        max_auto_voxel_m: Some(2.0 * auto),
+        ..cfg.clone()
+    });
+    assert_eq!(above.stats.voxel_size_m, auto);
+    assert_eq!(above.cloud.points, free.cloud.points);
+    let (below, scene) = fuse_scene(&FuseConfig {
+        max_auto_voxel_m: Some(0.5 * auto),
+        ..cfg.clone()
+    });
+    assert_eq!(below.stats.voxel_size_m, 0.5 * auto);
+    assert!(below.cloud.len() > 2 * free.cloud.len());
+    assert!(below
+        .cloud
+        .points
+        .iter()
+        .all(|p| scene.distance(p) < 0.0015));
+    // A voxel given outright is not bounded.
+    let (given, _) = fuse_scene(&FuseConfig {
+        voxel_size_m: Some(auto),
+        max_auto_voxel_m: Some(0.5 * auto),
+        ..cfg.clone()
+    });
+    assert_eq!(given.stats.voxel_size_m, auto);
+    for bad in [0.0, -0.01, f64::INFINITY, f64::NAN] {
+        let e = FuseConfig {
+            max_auto_voxel_m: Some(bad),
+            ..cfg.clone()
+        }
+        .validate()
+        .unwrap_err();
+        assert!(e.to_string().contains("fuse.max_auto_voxel_m"), "{e}");
+    }
+}
+
+#[test]
 fn the_range_cut_keeps_what_lies_within_the_sample_weighted_median() {
     // Oracle: every sample spelled out, sorted, the lower median.
     let mut rng = crate::geometry::Rng::new(7);
