@@ -118,6 +118,13 @@ impl Default for FuseConfig {
 }
 
 impl FuseConfig {
+    /// The automatic voxel edge of `depth` ([`auto_voxel_size`] at `auto_voxel_factor`, at most
+    /// `max_auto_voxel_m`), metres; `None` when the image has no valid depth in range.
+    pub fn auto_voxel(&self, depth: &DepthImage, intr: &Intrinsics) -> Option<f64> {
+        auto_voxel_size(depth, intr, &self.deproject, self.auto_voxel_factor)
+            .map(|v| self.max_auto_voxel_m.map_or(v, |m| v.min(m)))
+    }
+
     /// Fusion only: no outlier removal, no normals (the fast path the speed figures refer to).
     pub fn voxels_only() -> Self {
         FuseConfig {
@@ -879,8 +886,7 @@ fn resolve_voxel<'a>(
         return Ok(v);
     }
     images
-        .find_map(|img| auto_voxel_size(img, intr, &cfg.deproject, cfg.auto_voxel_factor))
-        .map(|v| cfg.max_auto_voxel_m.map_or(v, |m| v.min(m)))
+        .find_map(|img| cfg.auto_voxel(img, intr))
         .ok_or_else(|| {
             Error::InvalidInput(
                 "no frame has valid depth in the depth range; cannot choose a voxel size".into(),
@@ -935,15 +941,7 @@ pub fn fuse_robot(
     let voxel = match cfg.voxel_size_m {
         Some(v) => v,
         None => {
-            let auto = |img: &DepthImage| {
-                auto_voxel_size(
-                    img,
-                    robot.depth_intrinsics(),
-                    &cfg.deproject,
-                    cfg.auto_voxel_factor,
-                )
-                .map(|v| cfg.max_auto_voxel_m.map_or(v, |m| v.min(m)))
-            };
+            let auto = |img: &DepthImage| cfg.auto_voxel(img, robot.depth_intrinsics());
             let mut found = auto(&first);
             let mut i = 1;
             while found.is_none() && i < robot.frame_count() {
